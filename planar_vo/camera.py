@@ -1,0 +1,190 @@
+"""Camera model (pixels → rays) and camera mounting (rays → ground points, and back).
+
+Frames: base_link is REP-103 (x forward, y left, z up) on the rear axle *on the ground*
+(the ground is ``z = 0``). The camera body frame (x forward) sits at ``(x, y, height)`` in
+base_link with roll, pitch, yaw (positive pitch looks down), like a
+``static_transform_publisher base_link camera_link``. Rays are in the optical frame
+(x right, y down, z forward). Numpy and OpenCV only; no ROS.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+__all__ = ['CameraModel', 'CameraModelError', 'Mounting', 'level_to_base', 'BODY_FROM_OPTICAL']
+
+# Columns: optical x = body -y, optical y = body -z, optical z = body x (REP-103 optical frame).
+BODY_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+DISTORTION_MODELS = {'plumb_bob': (4, 5, 8, 12, 14), 'rational_polynomial': (8, 12, 14),
+                     'equidistant': (4,)}
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+
+
+class CameraModelError(ValueError):
+    """The calibration cannot be used (uncalibrated, unknown model, wrong coefficients)."""
+
+
+def _rotation_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """``Rz(yaw) Ry(pitch) Rx(roll)``, the fixed-axis convention of tf2 and URDF."""
+    cr, sr, cp, sp, cy, sy = (np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch),
+                              np.cos(yaw), np.sin(yaw))
+    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    return rz @ ry @ rx
+
+
+def level_to_base(points_xy: np.ndarray, height: float) -> np.ndarray:
+    """Rays of a virtual *level* camera on the rear axle at ``height`` seeing ground points.
+
+    The paper's solvers assume a level camera at the centre of circular motion; for a car
+    that is the rear axle. Any ground point ``(x, y)`` in base_link is seen by that virtual
+    camera along ``[-y, height, x]`` (optical convention), whatever camera really saw it.
+
+    Args:
+        points_xy: ground points in base_link, shape (N, 2), metres.
+
+    Returns:
+        rays, shape (N, 3).
+    """
+    x, y = points_xy[..., 0], points_xy[..., 1]
+    return np.stack([-y, np.full_like(x, height), x], axis=-1)
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Pinhole intrinsics and lens distortion as a sensor_msgs/CameraInfo describes them."""
+
+    K: np.ndarray  # 3x3
+    D: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    distortion_model: str = 'plumb_bob'
+    width: int = 0
+    height: int = 0
+
+    def __post_init__(self) -> None:
+        K = np.asarray(self.K, dtype=float).reshape(3, 3)
+        D = np.asarray(self.D, dtype=float).ravel()
+        if not (K[0, 0] > 0 and K[1, 1] > 0) or not np.all(np.isfinite(K)):
+            raise CameraModelError(
+                'camera is uncalibrated (K has a zero or invalid focal length): '
+                'calibrate it and publish a CameraInfo with a real K')
+        model = self.distortion_model or 'plumb_bob'
+        if np.allclose(D, 0.0):
+            D = np.zeros(0)
+        elif model not in DISTORTION_MODELS:
+            raise CameraModelError(
+                f'distortion model {model!r} is not supported; use one of '
+                f'{", ".join(DISTORTION_MODELS)}')
+        elif len(D) not in DISTORTION_MODELS[model]:
+            raise CameraModelError(
+                f'distortion model {model!r} takes {DISTORTION_MODELS[model]} '
+                f'coefficients, got {len(D)}')
+        object.__setattr__(self, 'K', K)
+        object.__setattr__(self, 'D', D)
+        object.__setattr__(self, 'distortion_model', model)
+
+    @property
+    def focal_px(self) -> float:
+        """Mean focal length in pixels: converts normalized errors to pixel errors."""
+        return 0.5 * float(self.K[0, 0] + self.K[1, 1])
+
+    def normalize(self, pixels: np.ndarray) -> np.ndarray:
+        """Undistort pixel positions to normalized image coordinates ``(x/z, y/z)``.
+
+        Args:
+            pixels: shape (N, 2).
+
+        Returns:
+            shape (N, 2), float64.
+        """
+        pts = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
+        if len(pts) == 0:
+            return np.zeros((0, 2))
+        if self.D.size == 0:
+            out = cv2.undistortPoints(pts, self.K, None)
+        elif self.distortion_model == 'equidistant':
+            out = cv2.fisheye.undistortPoints(pts, self.K, self.D,
+                                              criteria=_UNDISTORT_CRITERIA)
+        elif hasattr(cv2, 'undistortPointsIter'):  # OpenCV 4.x (Ubuntu's python3-opencv)
+            out = cv2.undistortPointsIter(pts, self.K, self.D, None, None, _UNDISTORT_CRITERIA)
+        else:  # OpenCV 5.x
+            out = cv2.undistortPoints(pts, self.K, self.D, criteria=_UNDISTORT_CRITERIA)
+        return out.reshape(-1, 2)
+
+    def distort(self, normalized: np.ndarray) -> np.ndarray:
+        """Project normalized coordinates (N, 2) to pixels (N, 2): the inverse of normalize."""
+        pts = np.asarray(normalized, dtype=np.float64).reshape(-1, 1, 2)
+        if len(pts) == 0:
+            return np.zeros((0, 2))
+        obj = np.concatenate([pts, np.ones((len(pts), 1, 1))], axis=-1)
+        zero = np.zeros(3)
+        if self.distortion_model == 'equidistant' and self.D.size:
+            out = cv2.fisheye.projectPoints(obj, zero, zero, self.K, self.D)[0]
+        else:
+            out = cv2.projectPoints(obj, zero, zero, self.K, self.D if self.D.size else None)[0]
+        return out.reshape(-1, 2)
+
+    def rays(self, pixels: np.ndarray) -> np.ndarray:
+        """Unnormalized rays ``[x, y, 1]`` (N, 3) in the optical frame."""
+        n = self.normalize(pixels)
+        return np.concatenate([n, np.ones((len(n), 1))], axis=1)
+
+
+@dataclass(frozen=True)
+class Mounting:
+    """Where the camera sits on the vehicle (camera body frame in base_link; m and rad)."""
+
+    x: float = 0.0
+    y: float = 0.0
+    height: float = 1.0
+    roll: float = 0.0
+    pitch: float = 0.0
+    yaw: float = 0.0
+
+    @property
+    def base_from_optical(self) -> np.ndarray:
+        """Rotation taking optical-frame vectors into base_link, 3x3."""
+        return _rotation_rpy(self.roll, self.pitch, self.yaw) @ BODY_FROM_OPTICAL
+
+    @property
+    def position(self) -> np.ndarray:
+        """Camera position in base_link, (3,)."""
+        return np.array([self.x, self.y, self.height])
+
+    def level_rays(self, rays: np.ndarray) -> np.ndarray:
+        """Rotate optical rays (N, 3) into the virtual level camera looking along base x.
+
+        The level camera has the optical convention with its y axis straight down, so the
+        ground is ``Y = height`` and the paper's reduced models apply.
+        """
+        return rays @ (BODY_FROM_OPTICAL.T @ self.base_from_optical).T
+
+    def ground_points(
+        self, rays: np.ndarray, min_depression: float = 0.0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Intersect optical rays (N, 3) with the ground.
+
+        Only rays at least ``min_depression`` rad below the horizon count: points just below
+        the horizon are often not ground but move almost like it, and bias the yaw.
+
+        Returns:
+            (points (N, 2) in base_link metres, valid (N,) bool); invalid points are NaN.
+        """
+        d = rays @ self.base_from_optical.T
+        norm = np.linalg.norm(d, axis=1)
+        valid = -d[:, 2] > np.sin(min_depression) * norm + 1e-12
+        scale = np.where(valid, self.height / np.where(valid, -d[:, 2], 1.0), np.nan)
+        points = self.position[:2] + scale[:, None] * d[:, :2]
+        return points, valid
+
+    def ground_to_optical(self) -> tuple[np.ndarray, np.ndarray]:
+        """Affine map of ground points to optical-frame points: ``P = A @ [x, y] + b``.
+
+        Returns:
+            (A (3, 2), b (3,)); normalized image coordinates are ``P[:2] / P[2]``.
+        """
+        optical_from_base = self.base_from_optical.T
+        return optical_from_base[:, :2].copy(), -optical_from_base @ self.position
