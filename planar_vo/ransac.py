@@ -232,7 +232,9 @@ def estimate_motion(
     if method == 'histogram':
         hyp = _hypotheses_1point(p1, p2, model.height)
         yaw = float(np.median(hyp[:, 2]))
-        best = circular_motion(yaw, float(np.median(np.hypot(hyp[:, 0], hyp[:, 1]))))
+        # Signed travel along the chord: outliers scatter on both signs, so the median holds.
+        chord = hyp[:, 0] * np.cos(hyp[:, 2] / 2) + hyp[:, 1] * np.sin(hyp[:, 2] / 2)
+        best = circular_motion(yaw, float(np.median(chord)))
         tried = n
     elif method in ('1point', '2point'):
         cap = max_hypotheses or (n if sample == 1 else 20 * n)
@@ -260,15 +262,17 @@ def estimate_motion(
         raise ValueError(f'unknown method {method!r}: use 1point, 2point or histogram')
     if best is None:
         raise PoseEstimationError('no motion hypothesis could be formed')
-    motion, covariance, rms, inliers = best, np.full((3, 3), np.nan), np.inf, None
-    for _ in range(2):  # refine, re-select the inliers with the better motion, refine again
-        inliers = transfer_errors(motion, p1, m2, model) < threshold_px
+    motion, inliers = best, transfer_errors(best, p1, m2, model) < threshold_px
+    for _ in range(5):  # refine, re-select the inliers with the better motion, until stable
         if np.count_nonzero(inliers) < 3:
             raise PoseEstimationError(
                 f'only {np.count_nonzero(inliers)} correspondences fit the best motion')
         motion, covariance, rms = refine_motion(
             motion, p1[inliers], m2[inliers], model, circular=circular_refine)
-    inliers = transfer_errors(motion, p1, m2, model) < threshold_px
+        selected = transfer_errors(motion, p1, m2, model) < threshold_px
+        if np.array_equal(selected, inliers):
+            break
+        inliers = selected
     return RansacResult(motion, covariance, inliers, tried, rms)
 
 

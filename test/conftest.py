@@ -1,0 +1,38 @@
+"""Shared fixtures: synthetic planar scenes with known motion."""
+
+import numpy as np
+import pytest
+
+from planar_vo.camera import CameraModel, Mounting
+
+
+def paper_motion_rays(rng, theta, phi, rho, d=1.5, n=20):
+    """Ground points seen by a level camera before and after a paper-convention motion."""
+    c, s = np.cos(theta), np.sin(theta)
+    r12 = np.array([[c, 0, -s], [0, 1, 0], [s, 0, c]])
+    t2 = -r12 @ (rho * np.array([np.sin(phi), 0, np.cos(phi)]))
+    points = np.c_[rng.uniform(-6, 6, n), np.full(n, d), rng.uniform(3, 20, n)]
+    x2 = points @ r12.T + t2
+    return points / points[:, 2:], x2 / x2[:, 2:]
+
+
+def move_points(points_base, motion):
+    """Ground points (N, 2) of base_link 1 expressed in base_link 2 = motion (x, y, yaw)."""
+    c, s = np.cos(motion[2]), np.sin(motion[2])
+    d = points_base - motion[:2]
+    return np.c_[c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]]
+
+
+def observe(mounting, points_base):
+    """Normalized image coordinates (N, 2) of ground points (N, 2) in base_link."""
+    A, b = mounting.ground_to_optical()
+    p = points_base @ A.T + b
+    return p[:, :2] / p[:, 2:]
+
+
+@pytest.fixture
+def car_camera():
+    """The realistic set-up: 8 degrees pitch, 1.2 m ahead of the rear axle, distortion."""
+    camera = CameraModel(K=np.array([[460.0, 0, 320], [0, 460.0, 240], [0, 0, 1]]),
+                         D=np.array([-0.25, 0.07, 0.0005, -0.0005, 0.0]))
+    return camera, Mounting(x=1.2, y=0.1, height=1.25, pitch=np.deg2rad(8.0), roll=0.01)
