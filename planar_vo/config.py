@@ -1,0 +1,154 @@
+"""The one parameter schema: names, defaults, ranges and descriptions.
+
+The node declares every parameter from it; ``planar_vo_replay`` reads the same YAML
+(``planar_vo: ros__parameters: ...``) through :func:`load_params_file`. No ROS imports.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+__all__ = ['Param', 'SCHEMA', 'ConfigError', 'defaults', 'validate', 'load_params_file',
+           'MOUNTING_PARAMS']
+
+NODE_NAME = 'planar_vo'
+
+
+class ConfigError(ValueError):
+    """A parameter file or value that cannot be used."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter: its default fixes the type; numbers have an inclusive range."""
+
+    name: str
+    default: Any
+    description: str
+    low: float | None = None
+    high: float | None = None
+    choices: tuple[str, ...] = ()
+    read_only: bool = False
+
+    def check(self, value: Any) -> Any:
+        """Return ``value`` converted to this parameter's type, or raise ConfigError."""
+        kind = type(self.default)
+        if kind is bool:
+            if not isinstance(value, bool):
+                raise ConfigError(f'{self.name} must be true or false, got {value!r}')
+            return value
+        if kind in (int, float):
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ConfigError(f'{self.name} must be a number, got {value!r}')
+            if kind is int and not float(value).is_integer():
+                raise ConfigError(f'{self.name} must be a whole number, got {value!r}')
+            value = kind(value)
+            if not math.isfinite(value) or (self.low is not None and value < self.low) or (
+                    self.high is not None and value > self.high):
+                raise ConfigError(
+                    f'{self.name} = {value} is outside its range [{self.low}, {self.high}]')
+            return value
+        if not isinstance(value, str):
+            raise ConfigError(f'{self.name} must be a string, got {value!r}')
+        if self.choices and value not in self.choices:
+            raise ConfigError(f'{self.name} must be one of {", ".join(self.choices)}, '
+                              f'got {value!r}')
+        if not self.choices and not value:
+            raise ConfigError(f'{self.name} must not be empty')
+        return value
+
+
+_PI = math.pi
+SCHEMA: tuple[Param, ...] = (
+    # Mounting: the camera body frame (x forward) in base_link, as a static transform says.
+    Param('camera_height', 1.25, 'Height of the camera above the ground, m (sets the scale).',
+          0.02, 20.0),
+    Param('camera_x', 1.2, 'Camera position ahead of base_link (rear axle), m.', -20.0, 20.0),
+    Param('camera_y', 0.0, 'Camera position left of base_link, m.', -20.0, 20.0),
+    Param('camera_roll', 0.0, 'Camera roll, rad.', -_PI / 2, _PI / 2),
+    Param('camera_pitch', math.radians(8.0), 'Camera pitch, rad; positive looks down.',
+          -_PI / 2, _PI / 2),
+    Param('camera_yaw', 0.0, 'Camera yaw, rad; positive looks left.', -_PI, _PI),
+    # Frames and outputs.
+    Param('odom_frame', 'odom', 'Frame of the published pose (REP-105).'),
+    Param('base_frame', 'base_link', 'Frame of the vehicle; the twist is expressed in it.'),
+    Param('publish_tf', True, 'Broadcast odom -> base_link on /tf (needs tf2_ros).'),
+    Param('publish_path', False, 'Publish ~/path (nav_msgs/Path) of the whole trajectory.'),
+    Param('publish_debug_image', False, 'Publish ~/debug_image with inlier/outlier tracks.'),
+    Param('image_transport', 'raw', "'raw' subscribes image, 'compressed' image/compressed.",
+          choices=('raw', 'compressed'), read_only=True),
+    Param('image_reliability', 'best_effort',
+          "QoS of the image subscription: 'best_effort' connects to every publisher; "
+          "'reliable' avoids losing large frames but only connects to reliable publishers.",
+          choices=('best_effort', 'reliable'), read_only=True),
+    # Tracking.
+    Param('max_features', 400, 'Features kept tracked; replenished on a grid.', 20, 5000),
+    Param('quality_level', 0.005, 'Shi-Tomasi quality relative to the best corner.',
+          1e-5, 0.5),
+    Param('min_distance', 8.0, 'Minimum distance between features, px.', 1.0, 100.0),
+    Param('klt_window', 21, 'Lucas-Kanade window size, px (odd).', 5, 101),
+    Param('klt_levels', 3, 'Pyramid levels above the full image for KLT.', 0, 8),
+    Param('fb_threshold', 0.5, 'Forward-backward KLT check: max round-trip error, px.',
+          0.05, 10.0),
+    Param('horizon_margin', math.radians(12.0),
+          'Use only rays at least this far below the horizon, rad: points just below it are '
+          'often not ground yet move like it.', 0.0, 1.4),
+    # Pose estimation.
+    Param('ransac_method', '1point', 'Hypotheses from 1 point (circular motion at the axle), '
+          '2 points (planar) or histogram voting.', choices=('1point', '2point', 'histogram')),
+    Param('inlier_threshold', 1.0, 'RANSAC inlier threshold on the transfer error, px.',
+          0.1, 20.0),
+    Param('ransac_confidence', 0.999, 'Probability of drawing an all-inlier sample.',
+          0.5, 0.999999),
+    Param('circular_refine', False, 'Keep the circular-motion constraint while refining.'),
+    Param('min_inliers', 12, 'Fewest inliers for a frame to count as estimated.', 3, 1000),
+    Param('max_frame_gap', 1.0, 'A larger gap between image stamps, or one backwards, restarts '
+          'tracking (the pose is kept, its covariance inflated), s.', 0.01, 3600.0),
+)
+
+MOUNTING_PARAMS = ('camera_height', 'camera_x', 'camera_y', 'camera_roll', 'camera_pitch',
+                   'camera_yaw')
+_BY_NAME = {p.name: p for p in SCHEMA}
+
+
+def defaults() -> dict[str, Any]:
+    """Every parameter at its default."""
+    return {p.name: p.default for p in SCHEMA}
+
+
+def validate(values: dict[str, Any]) -> dict[str, Any]:
+    """Defaults overlaid with checked ``values``; unknown names are an error (typos)."""
+    unknown = sorted(set(values) - set(_BY_NAME))
+    if unknown:
+        raise ConfigError(f'unknown parameter(s): {", ".join(unknown)}')
+    out = defaults()
+    for name, value in values.items():
+        out[name] = _BY_NAME[name].check(value)
+    return out
+
+
+def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, Any]:
+    """Read a ROS 2 params YAML (``<node>: ros__parameters: {...}``) and validate it."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as err:
+        raise ConfigError(f'cannot read params file {path}: {err.strerror}') from err
+    except yaml.YAMLError as err:
+        raise ConfigError(f'params file {path} is not valid YAML: {err}') from err
+    if data is None:
+        return defaults()
+    section = None
+    if isinstance(data, dict):
+        for key in (node_name, f'/{node_name}', '/**', '**'):
+            if isinstance(data.get(key), dict) and 'ros__parameters' in data[key]:
+                section = data[key]['ros__parameters']
+                break
+    if not isinstance(section, dict):
+        raise ConfigError(f'params file {path} has no "{node_name}: ros__parameters:" section')
+    return validate(section)

@@ -1,0 +1,300 @@
+"""Per-frame planar visual odometry: a grey image and its stamp in, the base_link pose out.
+
+track (KLT) → undistort → intersect the ground (rays well below the horizon) → 1-point
+RANSAC + refinement against the reference frame → metric motion of base_link → compose.
+No ROS imports: the node and the replay CLI are thin adapters around :class:`VisualOdometry`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from planar_vo.camera import CameraModel, Mounting
+from planar_vo.ransac import PoseEstimationError, TransferModel, estimate_motion, transfer_errors
+from planar_vo.tracker import Tracker
+
+__all__ = ['VisualOdometry', 'FrameResult', 'compose', 'ground_mask']
+
+# Variance added per second when a frame gives no estimate: a vehicle can move about this
+# much (m/s, rad/s) that we did not see. Generous on purpose: a filter should distrust us.
+_UNSEEN_SPEED, _UNSEEN_YAW_RATE = 2.0, 0.5
+_LOST_TWIST_VARIANCE = 1e3
+_RESTART_VARIANCE = (1.0, 1.0, 0.1)  # m², m², rad² added when a time jump restarts tracking
+
+
+@dataclass
+class FrameResult:
+    """What one image gave: pose in odom, body twist, covariances and stats."""
+
+    stamp: float
+    pose: np.ndarray  # (3,) x, y, yaw of base_link in odom
+    pose_covariance: np.ndarray  # (3, 3) over (x, y, yaw)
+    twist: np.ndarray  # (3,) vx, vy, yaw rate in base_link
+    twist_covariance: np.ndarray  # (3, 3)
+    status: str  # 'first', 'ok', 'no_estimate', 'reinitialized', 'time_jump', 'blank'
+    message: str = ''  # why the frame gave no estimate
+    tracks: int = 0
+    correspondences: int = 0
+    inliers: int = 0
+    hypotheses: int = 0
+    rms_px: float = 0.0
+    timing_ms: dict[str, float] = field(default_factory=dict)
+    inlier_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    outlier_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+
+    @property
+    def estimated(self) -> bool:
+        """True when this frame's motion was measured (not extrapolated or held)."""
+        return self.status == 'ok'
+
+
+def compose(
+    pose: np.ndarray, covariance: np.ndarray, motion: np.ndarray, motion_cov: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """SE(2) ``pose ∘ motion`` with first-order covariance propagation."""
+    x, y, yaw = pose
+    c, s = np.cos(yaw), np.sin(yaw)
+    mx, my, myaw = motion
+    new = np.array([x + c * mx - s * my, y + s * mx + c * my,
+                    (yaw + myaw + np.pi) % (2 * np.pi) - np.pi])
+    J_pose = np.array([[1.0, 0.0, -s * mx - c * my], [0.0, 1.0, c * mx - s * my],
+                       [0.0, 0.0, 1.0]])
+    J_motion = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return new, J_pose @ covariance @ J_pose.T + J_motion @ motion_cov @ J_motion.T
+
+
+def ground_mask(camera: CameraModel, mounting: Mounting, horizon_margin: float,
+                border: int = 8) -> np.ndarray:
+    """uint8 mask (H, W) of pixels whose rays hit the ground ``horizon_margin`` below it."""
+    step = 4
+    h, w = camera.height, camera.width
+    xs, ys = np.meshgrid(np.arange(0, w, step), np.arange(0, h, step))
+    grid = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
+    _, valid = mounting.ground_points(camera.rays(grid), horizon_margin)
+    coarse = valid.reshape(xs.shape).astype(np.uint8) * 255
+    mask = cv2.resize(coarse, (xs.shape[1] * step, xs.shape[0] * step),
+                      interpolation=cv2.INTER_NEAREST)[:h, :w].copy()
+    mask[:border], mask[-border:], mask[:, :border], mask[:, -border:] = 0, 0, 0, 0
+    return mask
+
+
+class VisualOdometry:
+    """Planar odometry of base_link from one ground-looking camera. Not thread-safe."""
+
+    def __init__(
+        self,
+        camera: CameraModel,
+        mounting: Mounting,
+        *,
+        tracker: Tracker | None = None,
+        horizon_margin: float = np.radians(12.0),
+        ransac_method: str = '1point',
+        inlier_threshold: float = 1.0,
+        ransac_confidence: float = 0.999,
+        circular_refine: bool = False,
+        min_inliers: int = 12,
+        max_frame_gap: float = 1.0,
+    ) -> None:
+        self.tracker = tracker or Tracker()
+        self.horizon_margin = horizon_margin
+        self.ransac_method = ransac_method
+        self.inlier_threshold = inlier_threshold
+        self.ransac_confidence = ransac_confidence
+        self.circular_refine = circular_refine
+        self.min_inliers = min_inliers
+        self.max_frame_gap = max_frame_gap
+        self.counters = {'frames': 0, 'estimated': 0, 'no_estimate': 0, 'reinitialized': 0,
+                         'time_jumps': 0, 'blank': 0}
+        self._rng = np.random.default_rng(0)
+        self.camera, self.mounting = camera, mounting
+        self._update_geometry()
+        self.reset()
+
+    @classmethod
+    def from_params(cls, camera: CameraModel, params: dict[str, Any]) -> VisualOdometry:
+        """Build from the parameter schema's values (see :mod:`planar_vo.config`)."""
+        tracker = Tracker(
+            max_features=params['max_features'], quality_level=params['quality_level'],
+            min_distance=params['min_distance'], window=params['klt_window'],
+            levels=params['klt_levels'], fb_threshold=params['fb_threshold'])
+        return cls(
+            camera, mounting_from_params(params), tracker=tracker,
+            horizon_margin=params['horizon_margin'], ransac_method=params['ransac_method'],
+            inlier_threshold=params['inlier_threshold'],
+            ransac_confidence=params['ransac_confidence'],
+            circular_refine=params['circular_refine'], min_inliers=params['min_inliers'],
+            max_frame_gap=params['max_frame_gap'])
+
+    def reset(self) -> None:
+        """Restart at the origin with no tracks."""
+        self.tracker.reset()
+        self.pose = np.zeros(3)
+        self.pose_covariance = np.diag([1e-9, 1e-9, 1e-9])
+        self.twist = np.zeros(3)
+        self.twist_covariance = np.eye(3) * _LOST_TWIST_VARIANCE
+        self._ref_stamp: float | None = None
+        self._last_stamp: float | None = None
+
+    def set_camera(self, camera: CameraModel) -> None:
+        """New intrinsics (e.g. a changed CameraInfo); tracks stay."""
+        self.camera = camera
+        self._update_geometry()
+
+    def set_mounting(self, mounting: Mounting) -> None:
+        """New camera mounting (run-time parameter change); tracks stay."""
+        self.mounting = mounting
+        self._update_geometry()
+
+    def _update_geometry(self) -> None:
+        self._model = TransferModel.from_camera(self.mounting, self.camera)
+        self._mask = None
+        if self.camera.width > 0 and self.camera.height > 0:
+            self._mask = ground_mask(self.camera, self.mounting, self.horizon_margin)
+
+    def process(self, gray: np.ndarray, stamp: float) -> FrameResult:
+        """Add one grey image (uint8, HxW) taken at ``stamp`` (s); return the new state."""
+        t0 = time.perf_counter()
+        self.counters['frames'] += 1
+        if self._mask is None or self._mask.shape != gray.shape:
+            self.camera = _with_size(self.camera, gray.shape)
+            self._update_geometry()
+        if self._last_stamp is not None and (
+                stamp <= self._last_stamp or stamp - self._last_stamp > self.max_frame_gap):
+            gap = stamp - self._last_stamp
+            self.counters['time_jumps'] += 1
+            self._restart(stamp, extrapolate=False)
+            self._detect(is_reference=True, gray=gray)
+            return self._result(stamp, 'time_jump', t0,
+                                message=f'time jumped by {gap:+.3f} s: tracking restarted')
+        if float(gray.std()) < 2.0:  # lens cap, dropped exposure: keep tracks for the next
+            self.counters['blank'] += 1
+            return self._result(stamp, 'blank', t0, message='blank image skipped')
+        self._last_stamp = stamp
+        if self._ref_stamp is None:
+            self._ref_stamp = stamp
+            self._detect(is_reference=True, gray=gray)
+            return self._result(stamp, 'first', t0)
+        self.tracker.track(gray)
+        t_track = time.perf_counter()
+        result = self._estimate(stamp, t0)
+        result.timing_ms['track'] = 1e3 * (t_track - t0)
+        self._detect(is_reference=result.estimated)
+        result.tracks = len(self.tracker)
+        result.timing_ms['total'] = 1e3 * (time.perf_counter() - t0)
+        return result
+
+    def _estimate(self, stamp: float, t0: float) -> FrameResult:
+        idx, ref_px, cur_px = self.tracker.correspondences()
+        rays1 = self.camera.rays(ref_px)
+        m2 = self.camera.normalize(cur_px)
+        p1, v1 = self.mounting.ground_points(rays1, self.horizon_margin)
+        p2, v2 = self.mounting.ground_points(
+            np.concatenate([m2, np.ones((len(m2), 1))], axis=1), self.horizon_margin)
+        ok = v1 & v2
+        n = int(np.count_nonzero(ok))
+        t_pose = time.perf_counter()
+        try:
+            est = estimate_motion(
+                p1[ok], p2[ok], m2[ok], self._model, method=self.ransac_method,
+                threshold_px=self.inlier_threshold, confidence=self.ransac_confidence,
+                circular_refine=self.circular_refine, rng=self._rng)
+            inliers = int(np.count_nonzero(est.inliers))
+            if inliers < self.min_inliers:
+                raise PoseEstimationError(f'{inliers} inliers, fewer than {self.min_inliers}')
+        except PoseEstimationError as err:
+            pose_ms = 1e3 * (time.perf_counter() - t_pose)
+            if n < self.min_inliers:  # the reference can never be matched again
+                self._restart(stamp, extrapolate=True)
+                return self._result(stamp, 'reinitialized', t0, correspondences=n,
+                                    message=f'tracking lost ({err}): restarted',
+                                    pose_ms=pose_ms)
+            self.counters['no_estimate'] += 1
+            return self._result(stamp, 'no_estimate', t0, correspondences=n, message=str(err),
+                                pose_ms=pose_ms)
+        pose_ms = 1e3 * (time.perf_counter() - t_pose)
+        dt = stamp - self._ref_stamp
+        self._ref_pose_update(est.motion, est.covariance, dt)
+        self._ref_stamp = stamp
+        # Tracks far off the motion are obstacles or mismatches: free their grid cells.
+        errors = transfer_errors(est.motion, p1[ok], m2[ok], self._model)
+        self.tracker.drop(idx[ok][errors > 3.0 * self.inlier_threshold])
+        self.counters['estimated'] += 1
+        used = cur_px[ok]
+        return self._result(
+            stamp, 'ok', t0, correspondences=n, inliers=int(np.count_nonzero(est.inliers)),
+            hypotheses=est.hypotheses, rms_px=est.rms_px, pose_ms=pose_ms,
+            inlier_points=used[est.inliers], outlier_points=used[~est.inliers])
+
+    def _ref_pose_update(self, motion: np.ndarray, motion_cov: np.ndarray, dt: float) -> None:
+        self.pose, self.pose_covariance = compose(
+            self.pose, self.pose_covariance, motion, motion_cov)
+        dt = max(dt, 1e-6)
+        # Body velocity at the end of the step: the chord direction turned back by half
+        # the yaw (exact for circular motion).
+        half = -0.5 * motion[2]
+        rot = np.array([[np.cos(half), -np.sin(half), 0.0], [np.sin(half), np.cos(half), 0.0],
+                        [0.0, 0.0, 1.0]])
+        self.twist = rot @ motion / dt
+        self.twist_covariance = rot @ motion_cov @ rot.T / dt ** 2
+
+    def _restart(self, stamp: float, *, extrapolate: bool) -> None:
+        """Restart tracking; the pose keeps going but is distrusted.
+
+        When tracks are lost the unseen motion since the reference is extrapolated from the
+        last twist; after a time jump it is not (the gap means nothing).
+        """
+        self.counters['reinitialized'] += 1
+        gap = 0.0 if self._ref_stamp is None else max(stamp - self._ref_stamp, 0.0)
+        if extrapolate and gap > 0:
+            unseen = np.diag([(_UNSEEN_SPEED * gap) ** 2] * 2 + [(_UNSEEN_YAW_RATE * gap) ** 2])
+            self._ref_pose_update(self.twist * gap, unseen, gap)
+        else:
+            self.pose_covariance = self.pose_covariance + np.diag(_RESTART_VARIANCE)
+        self.twist_covariance = np.eye(3) * _LOST_TWIST_VARIANCE
+        self.tracker.reset()
+        self._ref_stamp = stamp
+        self._last_stamp = stamp
+
+    def _detect(self, *, is_reference: bool, gray: np.ndarray | None = None) -> None:
+        if gray is not None:
+            self.tracker.track(gray)  # no tracks yet: just stores the image
+        self.tracker.replenish(self._mask, is_reference=is_reference)
+        if is_reference:
+            self.tracker.set_reference()
+
+    def _result(self, stamp: float, status: str, t0: float, *, message: str = '',
+                correspondences: int = 0, inliers: int = 0, hypotheses: int = 0,
+                rms_px: float = 0.0, pose_ms: float = 0.0,
+                inlier_points: np.ndarray | None = None,
+                outlier_points: np.ndarray | None = None) -> FrameResult:
+        pose, cov = self.pose.copy(), self.pose_covariance.copy()
+        twist, twist_cov = self.twist.copy(), self.twist_covariance.copy()
+        if status != 'ok' and self._ref_stamp is not None:
+            # Reported pose is the reference pose; it may have moved since, unseen.
+            gap = max(stamp - self._ref_stamp, 0.0)
+            cov += np.diag([(_UNSEEN_SPEED * gap) ** 2] * 2 + [(_UNSEEN_YAW_RATE * gap) ** 2])
+            twist_cov = np.eye(3) * _LOST_TWIST_VARIANCE
+        return FrameResult(
+            stamp=stamp, pose=pose, pose_covariance=cov, twist=twist,
+            twist_covariance=twist_cov, status=status, message=message,
+            tracks=len(self.tracker), correspondences=correspondences, inliers=inliers,
+            hypotheses=hypotheses, rms_px=rms_px,
+            timing_ms={'pose': pose_ms, 'total': 1e3 * (time.perf_counter() - t0)},
+            inlier_points=inlier_points if inlier_points is not None else np.zeros((0, 2)),
+            outlier_points=outlier_points if outlier_points is not None else np.zeros((0, 2)))
+
+
+def mounting_from_params(params: dict[str, Any]) -> Mounting:
+    """The Mounting the ``camera_*`` parameters describe."""
+    return Mounting(x=params['camera_x'], y=params['camera_y'], height=params['camera_height'],
+                    roll=params['camera_roll'], pitch=params['camera_pitch'],
+                    yaw=params['camera_yaw'])
+
+
+def _with_size(camera: CameraModel, shape: tuple[int, int]) -> CameraModel:
+    return CameraModel(camera.K, camera.D, camera.distortion_model, shape[1], shape[0])

@@ -1,0 +1,130 @@
+"""KLT feature tracking with a forward-backward check and grid replenishment (OpenCV).
+
+Every track remembers where it was in the *reference* frame (the last frame whose motion
+was estimated), so a frame that cannot be estimated does not lose motion: the next frame
+is matched against the same reference while its tracks survive.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+__all__ = ['Tracker']
+
+
+class Tracker:
+    """Pyramidal Lucas-Kanade tracks, kept spread over a grid inside a detection mask."""
+
+    def __init__(
+        self,
+        *,
+        max_features: int = 400,
+        quality_level: float = 0.005,
+        min_distance: float = 8.0,
+        window: int = 21,
+        levels: int = 3,
+        fb_threshold: float = 0.5,
+        grid: tuple[int, int] = (4, 8),
+    ) -> None:
+        self.max_features = max_features
+        self.quality_level = quality_level
+        self.min_distance = min_distance
+        self.fb_threshold = fb_threshold
+        self.grid = grid
+        self._lk = {
+            'winSize': (window | 1, window | 1),
+            'maxLevel': levels,
+            'criteria': (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01),
+        }
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every track (tracking restarts at the next image)."""
+        self.points = np.zeros((0, 2), np.float32)  # (N, 2) in the current image
+        self.reference = np.zeros((0, 2), np.float32)  # (N, 2) in the reference, NaN if new
+        self._image: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def track(self, gray: np.ndarray) -> None:
+        """Follow every track into ``gray`` (uint8, HxW); drop the ones that fail."""
+        if self._image is not None and len(self.points):
+            prev = self.points.reshape(-1, 1, 2)
+            cur, ok, _ = cv2.calcOpticalFlowPyrLK(self._image, gray, prev, None, **self._lk)
+            back, ok_back, _ = cv2.calcOpticalFlowPyrLK(gray, self._image, cur, None, **self._lk)
+            fb = np.linalg.norm((back - prev).reshape(-1, 2), axis=1)
+            h, w = gray.shape
+            cur = cur.reshape(-1, 2)
+            keep = ((ok.ravel() == 1) & (ok_back.ravel() == 1) & (fb < self.fb_threshold)
+                    & (cur[:, 0] >= 0) & (cur[:, 1] >= 0) & (cur[:, 0] <= w - 1)
+                    & (cur[:, 1] <= h - 1))
+            self.points, self.reference = cur[keep], self.reference[keep]
+        self._image = gray
+
+    def correspondences(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(indices, reference points, current points) of tracks seen in the reference."""
+        idx = np.flatnonzero(np.isfinite(self.reference[:, 0]))
+        return idx, self.reference[idx], self.points[idx]
+
+    def set_reference(self) -> None:
+        """The current frame becomes the reference of every track."""
+        self.reference = self.points.copy()
+
+    def drop(self, indices: np.ndarray) -> None:
+        """Remove tracks (e.g. outliers: obstacles, mismatches) so the grid refills."""
+        keep = np.ones(len(self.points), bool)
+        keep[indices] = False
+        self.points, self.reference = self.points[keep], self.reference[keep]
+
+    def replenish(self, mask: np.ndarray, *, is_reference: bool) -> int:
+        """Detect new corners in under-populated grid cells of ``mask`` (uint8, 255 = use).
+
+        Args:
+            is_reference: the current frame is the reference, so new tracks are usable at once.
+
+        Returns:
+            how many tracks were added.
+        """
+        deficit = self.max_features - len(self.points)
+        if self._image is None or deficit < 0.1 * self.max_features:
+            return 0
+        free = mask.copy()
+        for x, y in self.points.astype(int):
+            cv2.circle(free, (int(x), int(y)), int(self.min_distance), 0, -1)
+        corners = cv2.goodFeaturesToTrack(
+            self._image, maxCorners=3 * deficit, qualityLevel=self.quality_level,
+            minDistance=self.min_distance, mask=free, blockSize=5)
+        if corners is None:
+            return 0
+        corners = corners.reshape(-1, 2)
+        new = self._spread(corners, mask.shape, deficit)
+        if len(new):
+            cv2.cornerSubPix(self._image, new.reshape(-1, 1, 2), (3, 3), (-1, -1),
+                             (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 10, 0.03))
+        ref = new.copy() if is_reference else np.full_like(new, np.nan)
+        self.points = np.concatenate([self.points, new])
+        self.reference = np.concatenate([self.reference, ref])
+        return len(new)
+
+    def _spread(self, corners: np.ndarray, shape: tuple[int, int], deficit: int) -> np.ndarray:
+        """Take the best corners cell by cell so no cell holds more than its share."""
+        rows, cols = self.grid
+        h, w = shape
+        cell = (np.minimum(corners[:, 1] * rows // h, rows - 1) * cols
+                + np.minimum(corners[:, 0] * cols // w, cols - 1)).astype(int)
+        occupied = np.bincount(
+            (np.minimum(self.points[:, 1] * rows // h, rows - 1) * cols
+             + np.minimum(self.points[:, 0] * cols // w, cols - 1)).astype(int),
+            minlength=rows * cols)
+        share = int(np.ceil(self.max_features / max(np.count_nonzero(np.bincount(
+            cell, minlength=rows * cols) + occupied), 1)))
+        taken = []
+        for i in range(len(corners)):  # corners come sorted by quality
+            if occupied[cell[i]] < share:
+                occupied[cell[i]] += 1
+                taken.append(i)
+                if len(taken) == deficit:
+                    break
+        return corners[taken].astype(np.float32)
