@@ -41,6 +41,7 @@ setup(
     entry_points={
         'console_scripts': [
             'planar_vo_paper_experiment = planar_vo.paper_experiment:main',
+            'planar_vo_node = planar_vo.node:main',
         ],
     },
 )
