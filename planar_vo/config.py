@@ -100,7 +100,9 @@ SCHEMA: tuple[Param, ...] = (
           'often not ground yet move like it.', 0.0, 1.4),
     # Pose estimation.
     Param('ransac_method', '1point', 'Hypotheses from 1 point (circular motion at the axle), '
-          '2 points (planar) or histogram voting.', choices=('1point', '2point', 'histogram')),
+          '2 points (planar) or histogram voting; opencv_homography is the plain OpenCV '
+          '4-point way, for comparison only.',
+          choices=('1point', '2point', 'histogram', 'opencv_homography')),
     Param('inlier_threshold', 1.0, 'RANSAC inlier threshold on the transfer error, px.',
           0.1, 20.0),
     Param('ransac_confidence', 0.999, 'Probability of drawing an all-inlier sample.',

@@ -14,8 +14,16 @@ from typing import Any
 import cv2
 import numpy as np
 
+from planar_vo.baselines import homography_motion
 from planar_vo.camera import CameraModel, Mounting
-from planar_vo.ransac import PoseEstimationError, TransferModel, estimate_motion, transfer_errors
+from planar_vo.ransac import (
+    PoseEstimationError,
+    RansacResult,
+    TransferModel,
+    estimate_motion,
+    refine_motion,
+    transfer_errors,
+)
 from planar_vo.tracker import Tracker
 
 __all__ = ['VisualOdometry', 'FrameResult', 'compose', 'ground_mask']
@@ -199,10 +207,13 @@ class VisualOdometry:
         n = int(np.count_nonzero(ok))
         t_pose = time.perf_counter()
         try:
-            est = estimate_motion(
-                p1[ok], p2[ok], m2[ok], self._model, method=self.ransac_method,
-                threshold_px=self.inlier_threshold, confidence=self.ransac_confidence,
-                circular_refine=self.circular_refine, rng=self._rng)
+            if self.ransac_method == 'opencv_homography':
+                est = self._estimate_with_opencv(p1[ok], m2[ok])
+            else:
+                est = estimate_motion(
+                    p1[ok], p2[ok], m2[ok], self._model, method=self.ransac_method,
+                    threshold_px=self.inlier_threshold, confidence=self.ransac_confidence,
+                    circular_refine=self.circular_refine, rng=self._rng)
             inliers = int(np.count_nonzero(est.inliers))
             if inliers < self.min_inliers:
                 raise PoseEstimationError(f'{inliers} inliers, fewer than {self.min_inliers}')
@@ -229,6 +240,17 @@ class VisualOdometry:
             stamp, 'ok', t0, correspondences=n, inliers=int(np.count_nonzero(est.inliers)),
             hypotheses=est.hypotheses, rms_px=est.rms_px, pose_ms=pose_ms,
             inlier_points=used[est.inliers], outlier_points=used[~est.inliers])
+
+    def _estimate_with_opencv(self, p1: np.ndarray, m2: np.ndarray) -> RansacResult:
+        """The plain-OpenCV baseline (4-point homography), for comparison only."""
+        motion, inliers = homography_motion(
+            self._model.project(p1), m2, self.mounting,
+            threshold=self.inlier_threshold / self._model.focal_px)
+        if np.count_nonzero(inliers) < 3:
+            raise PoseEstimationError('the OpenCV homography has fewer than 3 inliers')
+        _, covariance, rms = refine_motion(motion, p1[inliers], m2[inliers], self._model,
+                                           iterations=0)
+        return RansacResult(motion, covariance, inliers, 0, rms)
 
     def _ref_pose_update(self, motion: np.ndarray, motion_cov: np.ndarray, dt: float) -> None:
         self.pose, self.pose_covariance = compose(

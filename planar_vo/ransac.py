@@ -34,13 +34,23 @@ class TransferModel:
     A: np.ndarray  # (3, 2) ground xy → optical point, linear part
     b: np.ndarray  # (3,) offset
     focal_px: float
-    height: float
+    mounting: Mounting
+
+    @property
+    def height(self) -> float:
+        """Camera height above the ground, m."""
+        return self.mounting.height
 
     @classmethod
     def from_camera(cls, mounting: Mounting, camera: CameraModel) -> TransferModel:
         """Build from the mounting and the intrinsics (only the focal length is used)."""
         A, b = mounting.ground_to_optical()
-        return cls(A, b, camera.focal_px, mounting.height)
+        return cls(A, b, camera.focal_px, mounting)
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """Normalized image coordinates (N, 2) of ground points (N, 2) seen from frame 1."""
+        P = points @ self.A.T + self.b
+        return P[:, :2] / P[:, 2:]
 
 
 @dataclass

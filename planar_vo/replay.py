@@ -1,0 +1,302 @@
+"""``planar_vo_replay``: the odometry pipeline run offline over a rosbag2 bag (no DDS).
+
+Reads images and CameraInfo with ``rosbags``, runs :class:`planar_vo.odometry.VisualOdometry`
+with the node's parameter file, writes ``/odom`` (nav_msgs/Odometry) to a new bag, and
+scores the trajectory when the bag has ground truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planar_vo import evaluate
+from planar_vo.bag import BagError, BagWriter, open_reader
+from planar_vo.camera import CameraModelError
+from planar_vo.config import ConfigError, defaults, load_params_file
+from planar_vo.messages import ImageError, camera_model_from_info, covariance_6x6, to_gray
+from planar_vo.odometry import FrameResult, VisualOdometry
+from planar_vo.progress import Progress
+
+__all__ = ['main', 'replay', 'ReplayError', 'Trajectory']
+
+IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
+INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
+ODOM_TYPE = 'nav_msgs/msg/Odometry'
+
+
+class ReplayError(RuntimeError):
+    """The bag cannot be replayed as asked (no images, ambiguous topics, ...)."""
+
+
+@dataclass
+class Trajectory:
+    """Stamped planar poses (N, 3): x, y, yaw."""
+
+    stamps: list[float] = field(default_factory=list)
+    poses: list[np.ndarray] = field(default_factory=list)
+
+    def add(self, stamp: float, pose: np.ndarray) -> None:
+        """Append one pose."""
+        self.stamps.append(stamp)
+        self.poses.append(np.asarray(pose, dtype=float))
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """(stamps (N,), poses (N, 3))."""
+        return np.asarray(self.stamps), np.asarray(self.poses).reshape(-1, 3)
+
+
+@dataclass
+class ReplayResult:
+    """What a replay produced."""
+
+    estimate: Trajectory
+    truth: Trajectory
+    counters: dict[str, int]
+    warnings: list[str]
+    frames: int
+    timing_ms: dict[str, float]
+
+
+def _stamp(header: Any) -> float:
+    return header.stamp.sec + 1e-9 * header.stamp.nanosec
+
+
+def _yaw(q: Any) -> float:
+    return float(np.arctan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z)))
+
+
+def _pick_topic(connections: list, types: tuple[str, ...], wanted: str | None, what: str,
+                flag: str, required: bool = True) -> Any:
+    """The connection for ``wanted``, or the only one of ``types``; clear errors otherwise."""
+    if wanted:
+        found = [c for c in connections if c.topic == wanted]
+        if not found:
+            raise ReplayError(f'topic {wanted} is not in the bag (topics: '
+                              f'{", ".join(sorted({c.topic for c in connections}))})')
+        if found[0].msgtype not in types:
+            raise ReplayError(f'{wanted} is {found[0].msgtype}, not {" or ".join(types)}')
+        return found[0]
+    found = [c for c in connections if c.msgtype in types]
+    topics = sorted({c.topic for c in found})
+    if len(topics) == 1:
+        return found[0]
+    if not topics:
+        if required:
+            raise ReplayError(f'the bag has no {what} topic ({" or ".join(types)})')
+        return None
+    if what == 'image' and sum(c.msgtype == IMAGE_TYPES[0] for c in found) == 1:
+        return next(c for c in found if c.msgtype == IMAGE_TYPES[0])  # raw beats compressed
+    raise ReplayError(f'several {what} topics ({", ".join(topics)}): choose one with {flag}')
+
+
+def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None = None,
+           image_topic: str | None = None, camera_info_topic: str | None = None,
+           ground_truth_topic: str | None = None, progress: bool = False) -> ReplayResult:
+    """Run the odometry over ``bag``; write ``/odom`` to ``output`` if given."""
+    estimate, truth, warnings = Trajectory(), Trajectory(), []
+    with open_reader(bag) as reader:
+        conns = list(reader.connections)
+        image_conn = _pick_topic(conns, IMAGE_TYPES, image_topic, 'image', '--image-topic')
+        info_conn = _pick_topic(conns, (INFO_TYPE,), camera_info_topic, 'CameraInfo',
+                                '--camera-info-topic')
+        truth_conn = _pick_topic(conns, (ODOM_TYPE,), ground_truth_topic, 'ground truth',
+                                 '--ground-truth-topic', required=False)
+        wanted = [c for c in (image_conn, info_conn, truth_conn) if c is not None]
+        total = sum(c.msgcount for c in conns if c.topic == image_conn.topic)
+        writer = BagWriter(output) if output else None
+        vo: VisualOdometry | None = None
+        frames, pending = 0, None
+        bar = Progress(total, 'replay', enabled=progress)
+        try:
+            if writer:
+                writer.open()
+            for conn, _, raw in reader.messages(connections=wanted):
+                msg = reader.deserialize(raw, conn.msgtype)
+                if conn.topic == info_conn.topic:
+                    try:
+                        camera = camera_model_from_info(msg)
+                    except CameraModelError as err:
+                        _warn_once(warnings, f'CameraInfo refused: {err}')
+                        continue
+                    if vo is None:
+                        vo = VisualOdometry.from_params(camera, params)
+                        if pending is not None:  # its CameraInfo came just after it
+                            _process(vo, pending, estimate, writer, params, warnings)
+                            pending = None
+                    elif not np.array_equal(camera.K, vo.camera.K) or not np.array_equal(
+                            camera.D, vo.camera.D):
+                        vo.set_camera(camera)
+                elif truth_conn is not None and conn.topic == truth_conn.topic:
+                    p = msg.pose.pose
+                    truth.add(_stamp(msg.header),
+                              [p.position.x, p.position.y, _yaw(p.orientation)])
+                else:
+                    frames += 1
+                    bar.update(frames)
+                    if vo is None:
+                        if pending is not None:
+                            _warn_once(warnings, 'images before any CameraInfo were skipped')
+                        pending = msg
+                        continue
+                    _process(vo, msg, estimate, writer, params, warnings)
+        except BagError:
+            raise
+        except Exception as err:  # rosbags raises many kinds on a truncated or corrupt file
+            raise BagError(f'bag {bag} is corrupt after {frames} images ({err}); '
+                           f'what was read before is in the output') from None
+        finally:
+            bar.close()
+            if writer:
+                writer.close()
+    if vo is None:
+        raise ReplayError(f'no usable CameraInfo on {info_conn.topic}')
+    return ReplayResult(estimate, truth, dict(vo.counters), warnings, frames, {})
+
+
+def _process(vo: VisualOdometry, msg: Any, estimate: Trajectory, writer: BagWriter | None,
+             params: dict[str, Any], warnings: list[str]) -> None:
+    try:
+        gray = to_gray(msg)
+    except ImageError as err:
+        _warn_once(warnings, f'image skipped: {err}')
+        return
+    result = vo.process(gray, _stamp(msg.header))
+    if result.message:
+        _warn_once(warnings, result.message)
+    estimate.add(result.stamp, result.pose)
+    if writer:
+        writer.write('/odom', ODOM_TYPE, int(round(result.stamp * 1e9)),
+                     _odometry(result, msg.header, params))
+
+
+def _warn_once(warnings: list[str], message: str) -> None:
+    # Per-frame messages carry numbers; one line per kind of problem is enough.
+    kind = message.split(':')[0]
+    if not any(w.split(':')[0] == kind for w in warnings):
+        warnings.append(message)
+
+
+def _odometry(result: FrameResult, header: Any, params: dict[str, Any]) -> Any:
+    from planar_vo.bag import typestore
+
+    types = typestore().types
+    Header, Odometry = types['std_msgs/msg/Header'], types[ODOM_TYPE]
+    geo = 'geometry_msgs/msg/'
+    x, y, yaw = result.pose
+    vx, vy, wz = result.twist
+    pose = types[geo + 'Pose'](
+        position=types[geo + 'Point'](x=float(x), y=float(y), z=0.0),
+        orientation=types[geo + 'Quaternion'](x=0.0, y=0.0, z=float(np.sin(yaw / 2)),
+                                              w=float(np.cos(yaw / 2))))
+    twist = types[geo + 'Twist'](
+        linear=types[geo + 'Vector3'](x=float(vx), y=float(vy), z=0.0),
+        angular=types[geo + 'Vector3'](x=0.0, y=0.0, z=float(wz)))
+    return Odometry(
+        header=Header(stamp=header.stamp, frame_id=params['odom_frame']),
+        child_frame_id=params['base_frame'],
+        pose=types[geo + 'PoseWithCovariance'](
+            pose=pose, covariance=covariance_6x6(result.pose_covariance)),
+        twist=types[geo + 'TwistWithCovariance'](
+            twist=twist, covariance=covariance_6x6(result.twist_covariance)))
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog='planar_vo_replay',
+        description='Run planar_vo offline over a rosbag2 bag (MCAP or sqlite3, Image or '
+                    'CompressedImage), write /odom to a new bag, and score it against '
+                    'ground truth when the bag has it.')
+    p.add_argument('bag', help='rosbag2 directory or .mcap file')
+    p.add_argument('--params', help='ROS 2 params YAML (planar_vo: ros__parameters:), the '
+                   'same file the node takes; default: the built-in defaults')
+    p.add_argument('--output', help='bag to write /odom (nav_msgs/Odometry) to; must not '
+                   'exist')
+    p.add_argument('--image-topic', help='image topic (default: the only one in the bag)')
+    p.add_argument('--camera-info-topic', help='CameraInfo topic (default: the only one)')
+    p.add_argument('--ground-truth-topic', help='nav_msgs/Odometry ground truth (default: '
+                   'the only Odometry topic, if any)')
+    p.add_argument('--json', action='store_true', help='print one JSON object, no table')
+    p.add_argument('--plot', metavar='OUT.png', help='plot estimated vs true path')
+    p.add_argument('--tum', metavar='PREFIX', help='write PREFIX_estimate.txt and '
+                   'PREFIX_truth.txt in TUM format (for evo)')
+    return p
+
+
+def report(result: ReplayResult) -> dict[str, Any]:
+    """Summary: counters, and accuracy when ground truth matches the estimate's stamps."""
+    out: dict[str, Any] = {'images': result.frames, 'counters': result.counters,
+                           'warnings': result.warnings}
+    stamps, poses = result.estimate.arrays()
+    gt_stamps, gt_poses = result.truth.arrays()
+    if len(gt_stamps) and len(stamps):
+        ia, ib = evaluate.associate(stamps, gt_stamps)
+        if len(ia) > 1:
+            out['accuracy'] = evaluate.metrics(poses[ia], gt_poses[ib])
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point; returns the exit code."""
+    args = _parser().parse_args(argv)
+    try:
+        params = load_params_file(args.params) if args.params else defaults()
+        if args.output and Path(args.output).exists():
+            raise ReplayError(f'output {args.output} exists: choose a new path or remove it')
+        result = replay(args.bag, params, output=args.output, image_topic=args.image_topic,
+                        camera_info_topic=args.camera_info_topic,
+                        ground_truth_topic=args.ground_truth_topic,
+                        progress=not args.json and sys.stderr.isatty())
+        summary = report(result)
+        if args.tum:
+            evaluate.write_tum(f'{args.tum}_estimate.txt', *result.estimate.arrays())
+            if len(result.truth.stamps):
+                evaluate.write_tum(f'{args.tum}_truth.txt', *result.truth.arrays())
+        if args.plot:
+            trajectories = {'estimate (planar_vo)': result.estimate.arrays()[1]}
+            if len(result.truth.stamps):
+                trajectories = {'ground truth': result.truth.arrays()[1], **trajectories}
+            evaluate.plot_trajectories(args.plot, trajectories, title=Path(args.bag).name)
+            summary['plot'] = str(args.plot)
+    except (BagError, ConfigError, ReplayError, OSError) as err:
+        print(f'planar_vo_replay: error: {err}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print('planar_vo_replay: interrupted', file=sys.stderr)
+        return 130
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        _print_summary(summary, args)
+    return 0
+
+
+def _print_summary(summary: dict[str, Any], args: argparse.Namespace) -> None:
+    c = summary['counters']
+    print(f'{summary["images"]} images: {c["estimated"]} estimated, {c["no_estimate"]} not '
+          f'estimated, {c["reinitialized"]} re-initialisations, {c["blank"]} blank, '
+          f'{c["time_jumps"]} time jumps')
+    for w in summary['warnings']:
+        print(f'warning: {w}')
+    acc = summary.get('accuracy')
+    if acc:
+        print(f'path {acc["path_length_m"]:.2f} m over {acc["frames"]} frames')
+        print(f't_rel {acc["t_rel_percent"]:.3f} %   r_rel {acc["r_rel_deg_per_100m"]:.3f} '
+              f'deg/100m   ATE RMSE {acc["ate_rmse_m"]:.3f} m')
+        print(f'final drift {acc["final_drift_m"]:.3f} m ({acc["final_drift_percent"]:.3f} %)'
+              f'   yaw {acc["final_yaw_error_deg"]:.3f} deg   scale ratio '
+              f'{acc["scale_ratio"]:.4f}')
+    if args.output:
+        print(f'odometry written to {args.output}')
+    if args.plot:
+        print(f'plot written to {args.plot}')
+
+
+if __name__ == '__main__':
+    sys.exit(main())
