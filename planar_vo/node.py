@@ -219,7 +219,7 @@ class PlanarVoNode(Node):
             result = self.vo.process(gray, messages.stamp_to_seconds(msg.header.stamp))
         except Exception as err:  # noqa: BLE001 - bad input must never kill the node
             self._stats['skipped'] += 1
-            self._warn(f'error:{type(err).__name__}', f'image skipped: {err}')
+            self._warn(f'error:{err}', f'image skipped: {err}')
             return
         self._publish(msg.header, gray, result)
 
