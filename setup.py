@@ -31,7 +31,7 @@ setup(
     install_requires=['setuptools'],
     extras_require={
         'wheels': WHEELS,
-        'test': ['pytest', 'ruff', 'matplotlib'],
+        'test': ['pytest', 'ruff', 'matplotlib', 'colcon-common-extensions', 'setuptools<80'],
     },
     zip_safe=True,
     maintainer='planar_vo maintainers',
