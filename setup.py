@@ -42,6 +42,7 @@ setup(
         'console_scripts': [
             'planar_vo_paper_experiment = planar_vo.paper_experiment:main',
             'planar_vo_node = planar_vo.node:main',
+            'planar_vo_replay = planar_vo.replay:main',
         ],
     },
 )

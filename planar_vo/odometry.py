@@ -32,6 +32,7 @@ __all__ = ['VisualOdometry', 'FrameResult', 'compose', 'ground_mask']
 # much (m/s, rad/s) that we did not see. Generous on purpose: a filter should distrust us.
 _UNSEEN_SPEED, _UNSEEN_YAW_RATE = 2.0, 0.5
 _LOST_TWIST_VARIANCE = 1e3
+_MAX_FAILED_FRAMES = 3  # frames in a row without an estimate before tracking counts as lost
 _RESTART_VARIANCE = (1.0, 1.0, 0.1)  # m², m², rad² added when a time jump restarts tracking
 
 
@@ -147,6 +148,7 @@ class VisualOdometry:
         self.twist_covariance = np.eye(3) * _LOST_TWIST_VARIANCE
         self._ref_stamp: float | None = None
         self._last_stamp: float | None = None
+        self._failed_frames = 0
 
     def set_camera(self, camera: CameraModel) -> None:
         """New intrinsics (e.g. a changed CameraInfo); tracks stay."""
@@ -182,19 +184,33 @@ class VisualOdometry:
         if float(gray.std()) < 2.0:  # lens cap, dropped exposure: keep tracks for the next
             self.counters['blank'] += 1
             return self._result(stamp, 'blank', t0, message='blank image skipped')
-        self._last_stamp = stamp
+        previous, self._last_stamp = self._last_stamp, stamp
         if self._ref_stamp is None:
             self._ref_stamp = stamp
             self._detect(is_reference=True, gray=gray)
             return self._result(stamp, 'first', t0)
-        self.tracker.track(gray)
+        self.tracker.track(gray, self._predict_tracks(stamp - previous))
         t_track = time.perf_counter()
         result = self._estimate(stamp, t0)
         result.timing_ms['track'] = 1e3 * (t_track - t0)
-        self._detect(is_reference=result.estimated)
+        self._detect(is_reference=result.status in ('ok', 'reinitialized'))
         result.tracks = len(self.tracker)
         result.timing_ms['total'] = 1e3 * (time.perf_counter() - t0)
         return result
+
+    def _predict_tracks(self, dt: float) -> np.ndarray | None:
+        """Pixels (N, 2) where ground tracks should be after ``dt`` at the last twist."""
+        points = self.tracker.points
+        if not len(points) or not np.any(self.twist) or self.twist_covariance[0, 0] >= (
+                _LOST_TWIST_VARIANCE):
+            return None
+        ground, valid = self.mounting.ground_points(self.camera.rays(points))
+        predicted = points.astype(np.float64)
+        moved = self._model.transfer(self.twist * dt, ground[valid])
+        ok = np.all(np.isfinite(moved), axis=1)
+        rows = np.flatnonzero(valid)[ok]
+        predicted[rows] = self.camera.distort(moved[ok])
+        return predicted
 
     def _estimate(self, stamp: float, t0: float) -> FrameResult:
         idx, ref_px, cur_px = self.tracker.correspondences()
@@ -219,7 +235,10 @@ class VisualOdometry:
                 raise PoseEstimationError(f'{inliers} inliers, fewer than {self.min_inliers}')
         except PoseEstimationError as err:
             pose_ms = 1e3 * (time.perf_counter() - t_pose)
-            if n < self.min_inliers:  # the reference can never be matched again
+            self._failed_frames += 1
+            # Too few tracks to ever match the reference again, or too many frames in a row
+            # without a match (the surviving tracks are likely wrong): tracking is lost.
+            if n < self.min_inliers or self._failed_frames > _MAX_FAILED_FRAMES:
                 self._restart(stamp, extrapolate=True)
                 return self._result(stamp, 'reinitialized', t0, correspondences=n,
                                     message=f'tracking lost ({err}): restarted',
@@ -228,6 +247,7 @@ class VisualOdometry:
             return self._result(stamp, 'no_estimate', t0, correspondences=n, message=str(err),
                                 pose_ms=pose_ms)
         pose_ms = 1e3 * (time.perf_counter() - t_pose)
+        self._failed_frames = 0
         dt = stamp - self._ref_stamp
         self._ref_pose_update(est.motion, est.covariance, dt)
         self._ref_stamp = stamp
@@ -278,6 +298,7 @@ class VisualOdometry:
         else:
             self.pose_covariance = self.pose_covariance + np.diag(_RESTART_VARIANCE)
         self.twist_covariance = np.eye(3) * _LOST_TWIST_VARIANCE
+        self._failed_frames = 0
         self.tracker.reset()
         self._ref_stamp = stamp
         self._last_stamp = stamp

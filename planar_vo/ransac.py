@@ -47,6 +47,15 @@ class TransferModel:
         A, b = mounting.ground_to_optical()
         return cls(A, b, camera.focal_px, mounting)
 
+    def transfer(self, motion: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Normalized coordinates (N, 2) where frame-1 ground points appear after ``motion``.
+
+        NaN where the point would be behind the camera.
+        """
+        P = _predict(np.asarray(motion, dtype=float), points, self)
+        z = np.where(P[:, 2] > 1e-6, P[:, 2], np.nan)
+        return P[:, :2] / z[:, None]
+
     def project(self, points: np.ndarray) -> np.ndarray:
         """Normalized image coordinates (N, 2) of ground points (N, 2) seen from frame 1."""
         P = points @ self.A.T + self.b

@@ -20,7 +20,14 @@ from planar_vo import evaluate
 from planar_vo.bag import BagError, BagWriter, open_reader
 from planar_vo.camera import CameraModelError
 from planar_vo.config import ConfigError, defaults, load_params_file
-from planar_vo.messages import ImageError, camera_model_from_info, covariance_6x6, to_gray
+from planar_vo.messages import (
+    ImageError,
+    camera_info_to_model,
+    compressed_to_gray,
+    image_to_gray,
+    odometry_from_result,
+    stamp_to_seconds,
+)
 from planar_vo.odometry import FrameResult, VisualOdometry
 from planar_vo.progress import Progress
 
@@ -62,10 +69,6 @@ class ReplayResult:
     warnings: list[str]
     frames: int
     timing_ms: dict[str, float]
-
-
-def _stamp(header: Any) -> float:
-    return header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
 def _yaw(q: Any) -> float:
@@ -121,7 +124,7 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
                 msg = reader.deserialize(raw, conn.msgtype)
                 if conn.topic == info_conn.topic:
                     try:
-                        camera = camera_model_from_info(msg)
+                        camera = camera_info_to_model(msg)
                     except CameraModelError as err:
                         _warn_once(warnings, f'CameraInfo refused: {err}')
                         continue
@@ -135,7 +138,7 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
                         vo.set_camera(camera)
                 elif truth_conn is not None and conn.topic == truth_conn.topic:
                     p = msg.pose.pose
-                    truth.add(_stamp(msg.header),
+                    truth.add(stamp_to_seconds(msg.header.stamp),
                               [p.position.x, p.position.y, _yaw(p.orientation)])
                 else:
                     frames += 1
@@ -163,17 +166,17 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
 def _process(vo: VisualOdometry, msg: Any, estimate: Trajectory, writer: BagWriter | None,
              params: dict[str, Any], warnings: list[str]) -> None:
     try:
-        gray = to_gray(msg)
+        gray = compressed_to_gray(msg) if hasattr(msg, 'format') else image_to_gray(msg)
     except ImageError as err:
         _warn_once(warnings, f'image skipped: {err}')
         return
-    result = vo.process(gray, _stamp(msg.header))
+    result = vo.process(gray, stamp_to_seconds(msg.header.stamp))
     if result.message:
         _warn_once(warnings, result.message)
     estimate.add(result.stamp, result.pose)
     if writer:
-        writer.write('/odom', ODOM_TYPE, int(round(result.stamp * 1e9)),
-                     _odometry(result, msg.header, params))
+        writer.write_raw('/odom', ODOM_TYPE, int(round(result.stamp * 1e9)),
+                         _odometry_cdr(result, msg.header, params))
 
 
 def _warn_once(warnings: list[str], message: str) -> None:
@@ -183,28 +186,14 @@ def _warn_once(warnings: list[str], message: str) -> None:
         warnings.append(message)
 
 
-def _odometry(result: FrameResult, header: Any, params: dict[str, Any]) -> Any:
-    from planar_vo.bag import typestore
+def _odometry_cdr(result: FrameResult, header: Any, params: dict[str, Any]) -> bytes:
+    """The node's Odometry message, serialized as the node would send it."""
+    from builtin_interfaces.msg import Time
+    from rclpy.serialization import serialize_message
 
-    types = typestore().types
-    Header, Odometry = types['std_msgs/msg/Header'], types[ODOM_TYPE]
-    geo = 'geometry_msgs/msg/'
-    x, y, yaw = result.pose
-    vx, vy, wz = result.twist
-    pose = types[geo + 'Pose'](
-        position=types[geo + 'Point'](x=float(x), y=float(y), z=0.0),
-        orientation=types[geo + 'Quaternion'](x=0.0, y=0.0, z=float(np.sin(yaw / 2)),
-                                              w=float(np.cos(yaw / 2))))
-    twist = types[geo + 'Twist'](
-        linear=types[geo + 'Vector3'](x=float(vx), y=float(vy), z=0.0),
-        angular=types[geo + 'Vector3'](x=0.0, y=0.0, z=float(wz)))
-    return Odometry(
-        header=Header(stamp=header.stamp, frame_id=params['odom_frame']),
-        child_frame_id=params['base_frame'],
-        pose=types[geo + 'PoseWithCovariance'](
-            pose=pose, covariance=covariance_6x6(result.pose_covariance)),
-        twist=types[geo + 'TwistWithCovariance'](
-            twist=twist, covariance=covariance_6x6(result.twist_covariance)))
+    stamp = Time(sec=int(header.stamp.sec), nanosec=int(header.stamp.nanosec))
+    return serialize_message(odometry_from_result(
+        result, stamp, params['odom_frame'], params['base_frame']))
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -37,23 +37,35 @@ class Tracker:
             'maxLevel': levels,
             'criteria': (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01),
         }
+        self._image: np.ndarray | None = None
         self.reset()
 
     def reset(self) -> None:
-        """Forget every track (tracking restarts at the next image)."""
+        """Forget every track; the last image stays, so new tracks can start in it."""
         self.points = np.zeros((0, 2), np.float32)  # (N, 2) in the current image
         self.reference = np.zeros((0, 2), np.float32)  # (N, 2) in the reference, NaN if new
-        self._image: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.points)
 
-    def track(self, gray: np.ndarray) -> None:
-        """Follow every track into ``gray`` (uint8, HxW); drop the ones that fail."""
+    def track(self, gray: np.ndarray, predicted: np.ndarray | None = None) -> None:
+        """Follow every track into ``gray`` (uint8, HxW); drop the ones that fail.
+
+        Args:
+            predicted: (N, 2) where each track is expected (from the motion so far); KLT
+                starts there, so fast motion and skipped frames stay within its reach.
+        """
         if self._image is not None and len(self.points):
             prev = self.points.reshape(-1, 1, 2)
-            cur, ok, _ = cv2.calcOpticalFlowPyrLK(self._image, gray, prev, None, **self._lk)
-            back, ok_back, _ = cv2.calcOpticalFlowPyrLK(gray, self._image, cur, None, **self._lk)
+            if predicted is None:
+                cur, ok, _ = cv2.calcOpticalFlowPyrLK(self._image, gray, prev, None, **self._lk)
+            else:
+                cur, ok, _ = cv2.calcOpticalFlowPyrLK(
+                    self._image, gray, prev, predicted.reshape(-1, 1, 2).astype(np.float32),
+                    flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk)
+            back, ok_back, _ = cv2.calcOpticalFlowPyrLK(
+                gray, self._image, cur, prev.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+                **self._lk)
             fb = np.linalg.norm((back - prev).reshape(-1, 2), axis=1)
             h, w = gray.shape
             cur = cur.reshape(-1, 2)

@@ -36,3 +36,31 @@ def car_camera():
     camera = CameraModel(K=np.array([[460.0, 0, 320], [0, 460.0, 240], [0, 0, 1]]),
                          D=np.array([-0.25, 0.07, 0.0005, -0.0005, 0.0]))
     return camera, Mounting(x=1.2, y=0.1, height=1.25, pitch=np.deg2rad(8.0), roll=0.01)
+
+
+def synth_camera_model(renderer):
+    """The CameraModel a CameraInfo of the synthetic camera would give."""
+    cam = renderer.camera
+    return CameraModel(cam.k_matrix(), np.array(cam.dist), 'plumb_bob', cam.width, cam.height)
+
+
+def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None):
+    """Render a synthetic scenario and run the odometry core on it (no bag, no ROS).
+
+    ``corrupt(k, image, stamp)`` may replace frame k (image, stamp) to inject bad input.
+    Returns (results, ground truth poses (N, 3)).
+    """
+    from planar_vo import config, synth
+    from planar_vo.odometry import VisualOdometry
+
+    renderer, traj = synth.render_scenario(scenario, frames, seed)
+    params = config.validate(overrides or {})
+    vo = VisualOdometry.from_params(synth_camera_model(renderer), params)
+    results = []
+    for k in range(frames):
+        image = renderer.render(traj.x[k], traj.y[k], traj.yaw[k], k)
+        stamp = k / 30.0
+        if corrupt is not None:
+            image, stamp = corrupt(k, image, stamp)
+        results.append(vo.process(image, stamp))
+    return results, np.c_[traj.x, traj.y, traj.yaw]
