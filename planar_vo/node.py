@@ -35,7 +35,6 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_srvs.srv import Trigger
 
 from planar_vo import config, messages
-from planar_vo.camera import CameraModelError
 from planar_vo.odometry import VisualOdometry, mounting_from_params
 
 _PARAMS = {p.name: p for p in config.SCHEMA}
@@ -183,24 +182,25 @@ class PlanarVoNode(Node):
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
-            camera = messages.camera_info_to_model(msg)
-        except (CameraModelError, ValueError) as err:
+            self._set_camera(messages.camera_info_to_model(msg))
+        except Exception as err:  # noqa: BLE001 - CameraModelError mostly; never die
             self._warn('camera_info', f'camera_info refused: {err}')
-            return
+
+    def _set_camera(self, camera) -> None:
         if self.camera is not None and (
                 camera.width, camera.height, camera.distortion_model) == (
                 self.camera.width, self.camera.height, self.camera.distortion_model) and (
                 (camera.K == self.camera.K).all() and camera.D.shape == self.camera.D.shape
                 and (camera.D == self.camera.D).all()):
             return
-        self.camera = camera
         if self.vo is None:
-            self._rebuild()
+            self.vo = VisualOdometry.from_params(camera, self.params)
             self.get_logger().info(f'camera: {camera.width}x{camera.height}, '
                                    f'fx {camera.K[0, 0]:.1f}, {camera.distortion_model}')
         else:
             self.vo.set_camera(camera)
             self.get_logger().info('camera_info changed: intrinsics updated')
+        self.camera = camera
 
     def _on_image(self, msg: Image) -> None:
         self._process(msg, messages.image_to_gray)
@@ -216,12 +216,15 @@ class PlanarVoNode(Node):
             return
         try:
             gray = decode(msg)
+            cam = self.camera
+            if cam.width and gray.shape != (cam.height, cam.width):
+                self._warn('size', f'image is {gray.shape[1]}x{gray.shape[0]} but camera_info '
+                           f'says {cam.width}x{cam.height}: intrinsics used unscaled')
             result = self.vo.process(gray, messages.stamp_to_seconds(msg.header.stamp))
+            self._publish(msg.header, gray, result)
         except Exception as err:  # noqa: BLE001 - bad input must never kill the node
             self._stats['skipped'] += 1
             self._warn(f'error:{err}', f'image skipped: {err}')
-            return
-        self._publish(msg.header, gray, result)
 
     # ---------------------------------------------------------------- output
     def _publish(self, header, gray, result) -> None:
