@@ -255,8 +255,12 @@ def test_accuracy_on_bag_and_odom_contract(ros, node_a, bag):
     reply = ros.call(Trigger, '/planar_vo/reset', Trigger.Request())
     assert reply.success and 'origin' in reply.message
     del odoms[:]
+    round_trips = []
     for k in range(len(bag.images)):
-        send_lockstep(image_pub, info_pub, bag.info, bag.image_msg(k), odoms)
+        msg = bag.image_msg(k)
+        t = time.perf_counter()
+        send_lockstep(image_pub, info_pub, bag.info, msg, odoms)
+        round_trips.append(time.perf_counter() - t)
     assert [stamp_ns(o) for o in odoms] == bag.stamps  # one odom per image, image stamps
 
     for o in odoms:
@@ -280,14 +284,17 @@ def test_accuracy_on_bag_and_odom_contract(ros, node_a, bag):
     last = odoms[-1].pose.pose.position
     error = float(np.hypot(last.x - truth_rel[0], last.y - truth_rel[1]))
     print(f'node on bag: {len(odoms)} frames, path {length:.2f} m, final error {error:.3f} m '
-          f'({100 * error / length:.3f} %)')
+          f'({100 * error / length:.3f} %); image -> odom round trip median '
+          f'{1e3 * np.median(round_trips):.1f} ms')
     assert length > 1.0
     assert error < 0.01 * length
 
     wait_for(lambda: paths and len(paths[-1].poses) > 2, 5, '~/path')
     assert paths[-1].header.frame_id == 'odom'
     wait_for(lambda: any(st.values for d in diags for st in d.status), 5, '/diagnostics')
-    keys = {kv.key for st in diags[-1].status for kv in st.values}
+    values = {kv.key: kv.value for st in diags[-1].status for kv in st.values}
+    keys = set(values)
+    print(f"node mean processing time {values.get('mean processing time (ms)')} ms")
     assert {'tracks', 'inliers', 'processing time (ms)', 'frames estimated',
             'frames failed', 'state'} <= keys
 
