@@ -268,8 +268,8 @@ class VisualOdometry:
             threshold=self.inlier_threshold / self._model.focal_px)
         if np.count_nonzero(inliers) < 3:
             raise PoseEstimationError('the OpenCV homography has fewer than 3 inliers')
-        _, covariance, rms = refine_motion(motion, p1[inliers], m2[inliers], self._model,
-                                           iterations=0)
+        _, covariance, rms, _ = refine_motion(motion, p1[inliers], m2[inliers], self._model,
+                                              iterations=0)
         return RansacResult(motion, covariance, inliers, 0, rms)
 
     def _ref_pose_update(self, motion: np.ndarray, motion_cov: np.ndarray, dt: float) -> None:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from planar_vo.camera import CameraModel, Mounting, level_to_base
-from planar_vo.solvers import homography_1point, homography_npoint, paper_to_planar
+from planar_vo.solvers import homography_npoint, paper_to_planar
 
 __all__ = ['TransferModel', 'RansacResult', 'PoseEstimationError', 'estimate_motion',
            'refine_motion', 'transfer_errors', 'circular_motion']
@@ -102,6 +102,43 @@ def _predict(motions: np.ndarray, p1: np.ndarray, model: TransferModel) -> np.nd
     return (qx[..., None] * model.A[:, 0] + qy[..., None] * model.A[:, 1] + model.b)
 
 
+def _squared_errors(motions: np.ndarray, p1: np.ndarray, m2: np.ndarray,
+                    model: TransferModel) -> np.ndarray:
+    """Squared transfer errors (B, N) in normalized units, inf behind the camera.
+
+    The RANSAC hot path: float32, a handful of in-place operations on (B, N) arrays.
+    """
+    A, b = model.A.astype(np.float32), model.b.astype(np.float32)
+    yaw = motions[:, 2:3].astype(np.float32)
+    c, s = np.cos(yaw), np.sin(yaw)
+    dx = p1[:, 0] - motions[:, 0:1].astype(np.float32)
+    dy = p1[:, 1] - motions[:, 1:2].astype(np.float32)
+    qx = c * dx
+    qx += s * dy
+    qy = dy
+    qy *= c
+    dx *= s
+    qy -= dx  # R(yaw)^T (p1 - t)
+    z = A[2, 0] * qx
+    z += A[2, 1] * qy
+    z += b[2]
+    eu = A[0, 0] * qx
+    eu += A[0, 1] * qy
+    eu += b[0]
+    eu -= m2[:, 0] * z
+    ev = A[1, 0] * qx
+    ev += A[1, 1] * qy
+    ev += b[1]
+    ev -= m2[:, 1] * z
+    eu *= eu
+    ev *= ev
+    eu += ev
+    z *= z
+    eu /= z
+    eu[z <= 0] = np.inf
+    return eu
+
+
 def transfer_errors(
     motions: np.ndarray, p1: np.ndarray, m2: np.ndarray, model: TransferModel
 ) -> np.ndarray:
@@ -115,37 +152,49 @@ def transfer_errors(
     Returns:
         (N,) or (B, N) errors in pixels; inf where the point would be behind the camera.
     """
-    P = _predict(np.asarray(motions, dtype=float), p1, model)
+    motions = np.asarray(motions, dtype=float)
+    P = _predict(motions.reshape(-1, 3), p1, model)
     z = P[..., 2]
     safe = np.where(z > 1e-6, z, 1.0)
     du = P[..., 0] / safe - m2[:, 0]
     dv = P[..., 1] / safe - m2[:, 1]
-    return np.where(z > 1e-6, np.hypot(du, dv) * model.focal_px, np.inf)
+    errors = np.where(z > 1e-6, np.hypot(du, dv) * model.focal_px, np.inf)
+    return errors.reshape(motions.shape[:-1] + (len(p1),))
 
 
 def _residuals_and_jacobian(
     motion: np.ndarray, p1: np.ndarray, m2: np.ndarray, model: TransferModel
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Stacked pixel residuals (2N,) and their Jacobian (2N, 3) w.r.t. (x, y, yaw)."""
+    """Residuals (2N,) in normalized units (all u, then all v) and the Jacobian (3, 2N).
+
+    Translation enters ``q = R^T (p1 - t)`` as a constant ``-R^T``, so its columns of
+    ``dP = A dq`` are constant 3-vectors; only yaw's column varies per point.
+    """
     x, y, yaw = motion
     c, s = np.cos(yaw), np.sin(yaw)
+    (a00, a01), (a10, a11), (a20, a21) = model.A
+    b0, b1, b2 = model.b
+    n = len(p1)
     dx, dy = p1[:, 0] - x, p1[:, 1] - y
-    q = np.stack([c * dx + s * dy, c * dy - s * dx], axis=1)
-    P = q @ model.A.T + model.b
-    z = P[:, 2]
-    u, v = P[:, 0] / z, P[:, 1] / z
-    # dq/d(x, y, yaw): translation enters as -R^T, yaw rotates (p1 - t).
-    dq = np.empty((len(p1), 2, 3))
-    dq[:, 0, 0], dq[:, 1, 0] = -c, s
-    dq[:, 0, 1], dq[:, 1, 1] = -s, -c
-    dq[:, 0, 2], dq[:, 1, 2] = -s * dx + c * dy, -c * dx - s * dy
-    dP = np.einsum('ij,njk->nik', model.A, dq)
-    J = np.empty((len(p1), 2, 3))
-    J[:, 0] = (dP[:, 0] - u[:, None] * dP[:, 2]) / z[:, None]
-    J[:, 1] = (dP[:, 1] - v[:, None] * dP[:, 2]) / z[:, None]
-    r = np.stack([u - m2[:, 0], v - m2[:, 1]], axis=1)
-    f = model.focal_px
-    return f * r.ravel(), f * J.reshape(-1, 3)
+    qx, qy = c * dx + s * dy, c * dy - s * dx
+    z = a20 * qx + a21 * qy + b2
+    iz = 1.0 / np.where(z > 1e-9, z, np.nan)  # behind the camera: NaN residuals
+    r = np.empty(2 * n)
+    u, v = r[:n], r[n:]
+    np.multiply(a00 * qx + a01 * qy + b0, iz, out=u)
+    np.multiply(a10 * qx + a11 * qy + b1, iz, out=v)
+    dz_yaw = a20 * qy - a21 * qx
+    J = np.empty((3, 2 * n))
+    for k, (d0, d1, d2) in enumerate(((a01 * s - a00 * c, a11 * s - a10 * c, a21 * s - a20 * c),
+                                      (-a00 * s - a01 * c, -a10 * s - a11 * c,
+                                       -a20 * s - a21 * c))):
+        J[k, :n] = (d0 - u * d2) * iz
+        J[k, n:] = (d1 - v * d2) * iz
+    J[2, :n] = (a00 * qy - a01 * qx - u * dz_yaw) * iz
+    J[2, n:] = (a10 * qy - a11 * qx - v * dz_yaw) * iz
+    u -= m2[:, 0]
+    v -= m2[:, 1]
+    return r, J
 
 
 def refine_motion(
@@ -156,37 +205,55 @@ def refine_motion(
     *,
     circular: bool = False,
     iterations: int = 10,
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """Gauss-Newton on the pixel transfer error, in 3 DoF or on the circular 2-DoF manifold.
+    threshold_px: float | None = None,
+) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """Gauss-Newton on the transfer error, in 3 DoF or on the circular 2-DoF manifold.
+
+    With ``threshold_px`` the inliers are chosen again at every step among all the points
+    (refinement and inlier selection converge together); without, every point is used.
 
     Returns:
-        (motion (3,), covariance (3, 3) of (x, y, yaw), rms error in pixels). The covariance
-        is ``sigma^2 (J^T J)^-1`` with sigma estimated from the residuals.
+        (motion (3,), covariance (3, 3) of (x, y, yaw), rms inlier error in pixels, inliers
+        (N,) bool). The covariance is ``sigma^2 (J^T J)^-1``, sigma from the residuals.
     """
     motion = np.asarray(motion, dtype=float).copy()
+    n = len(p1)
     if circular:  # state (rho, yaw): signed travel along the chord, and yaw
         rho, yaw = motion[0] * np.cos(motion[2] / 2) + motion[1] * np.sin(motion[2] / 2), motion[2]
         motion = circular_motion(yaw, rho)
-    for _ in range(iterations):
+    threshold2 = np.inf if threshold_px is None else (threshold_px / model.focal_px) ** 2
+    inliers = np.ones(n, bool)
+    for i in range(iterations + 1):
         r, J = _residuals_and_jacobian(motion, p1, m2, model)
+        selected = r[:n] ** 2 + r[n:] ** 2 < threshold2  # False for NaN: behind the camera
+        changed = not np.array_equal(selected, inliers)
+        inliers = selected
+        if np.count_nonzero(inliers) < 3:
+            raise PoseEstimationError(
+                f'only {np.count_nonzero(inliers)} correspondences fit the motion')
+        if not inliers.all():
+            both = np.concatenate([inliers, inliers])
+            r, J = r[both], J[:, both]
         if circular:
-            step = np.linalg.lstsq(J @ _circular_jacobian(rho, yaw), -r, rcond=None)[0]
+            J = _circular_jacobian(rho, yaw).T @ J
+        JJt = J @ J.T
+        if i == iterations:
+            break
+        step = -np.linalg.solve(JJt + 1e-15 * np.eye(len(J)), J @ r)
+        if np.max(np.abs(step)) < 1e-7 and not changed:  # 0.1 micrometre or microradian
+            break
+        if circular:
             rho, yaw = rho + step[0], yaw + step[1]
             motion = circular_motion(yaw, rho)
         else:
-            step = np.linalg.lstsq(J, -r, rcond=None)[0]
             motion = motion + step
-        if np.max(np.abs(step)) < 1e-10:
-            break
-    r, J = _residuals_and_jacobian(motion, p1, m2, model)
-    sigma2 = max(float(r @ r) / max(len(r) - (2 if circular else 3), 1), 1e-6)
+    sigma2 = max(float(r @ r) / max(len(r) - len(J), 1), 1e-14)
+    covariance = np.linalg.inv(JJt + 1e-15 * np.eye(len(J))) * sigma2
     if circular:
         G = _circular_jacobian(rho, yaw)
-        covariance = G @ np.linalg.pinv(G.T @ J.T @ J @ G) @ G.T * sigma2
-    else:
-        covariance = np.linalg.pinv(J.T @ J) * sigma2
-    rms = float(np.sqrt(r @ r / max(len(p1), 1)))
-    return motion, covariance, rms
+        covariance = G @ covariance @ G.T
+    rms = model.focal_px * float(np.sqrt(2.0 * r @ r / max(len(r), 1)))
+    return motion, covariance, rms, inliers
 
 
 def _circular_jacobian(rho: float, yaw: float) -> np.ndarray:
@@ -195,10 +262,19 @@ def _circular_jacobian(rho: float, yaw: float) -> np.ndarray:
     return np.array([[c, -rho / 2 * s], [s, rho / 2 * c], [0.0, 1.0]])
 
 
-def _hypotheses_1point(p1: np.ndarray, p2: np.ndarray, height: float) -> np.ndarray:
-    """One circular motion of the axle per correspondence (paper eq. 16), (N, 3)."""
-    m = homography_1point(level_to_base(p1, height), level_to_base(p2, height))
-    return paper_to_planar(m.theta, m.phi, m.rho * height)
+def _hypotheses_1point(p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
+    """One circular motion of the axle per correspondence, (N, 3).
+
+    This is paper eq. 16 (:func:`planar_vo.solvers.homography_1point`) for the virtual
+    level camera on the axle, whose rays are ``[-y, h, x]``: it reduces to
+    ``tan(yaw / 2) = (y1 - y2) / (x1 + x2)`` and ``rho = c (x1 - x2) + s (y1 + y2)`` with
+    ``(c, s)`` of ``yaw / 2``, where ``rho < 0`` is driving backwards. Written out because
+    it runs for every correspondence of every frame.
+    """
+    half = np.arctan((p1[:, 1] - p2[:, 1]) / (p1[:, 0] + p2[:, 0]))
+    c, s = np.cos(half), np.sin(half)
+    rho = c * (p1[:, 0] - p2[:, 0]) + s * (p1[:, 1] + p2[:, 1])
+    return np.stack([rho * c, rho * s, 2.0 * half], axis=-1)
 
 
 def _hypotheses_2point(
@@ -220,9 +296,10 @@ def estimate_motion(
     method: str = '1point',
     threshold_px: float = 1.0,
     confidence: float = 0.999,
-    batch: int = 32,
+    batch: int = 16,
     max_hypotheses: int | None = None,
     circular_refine: bool = False,
+    scored: int = 128,
     rng: np.random.Generator | None = None,
 ) -> RansacResult:
     """Robust planar motion from ground correspondences.
@@ -239,6 +316,8 @@ def estimate_motion(
         batch: hypotheses scored together (vectorised).
         max_hypotheses: cap on hypotheses (default: N for 1-point, 20 N for 2-point).
         circular_refine: keep the circular constraint in the refinement too.
+        scored: hypotheses are scored on a random subset of this many correspondences
+            (enough to rank them); the refinement then uses every correspondence.
 
     Raises:
         PoseEstimationError: fewer than 3 correspondences, or no hypothesis with 3 inliers.
@@ -249,7 +328,7 @@ def estimate_motion(
     rng = rng if rng is not None else np.random.default_rng(0)
     sample = 2 if method == '2point' else 1
     if method == 'histogram':
-        hyp = _hypotheses_1point(p1, p2, model.height)
+        hyp = _hypotheses_1point(p1, p2)
         yaw = float(np.median(hyp[:, 2]))
         # Signed travel along the chord: outliers scatter on both signs, so the median holds.
         chord = hyp[:, 0] * np.cos(hyp[:, 2] / 2) + hyp[:, 1] * np.sin(hyp[:, 2] / 2)
@@ -257,41 +336,35 @@ def estimate_motion(
         tried = n
     elif method in ('1point', '2point'):
         cap = max_hypotheses or (n if sample == 1 else 20 * n)
-        order = rng.permutation(n) if sample == 1 else None
+        order = rng.permutation(n)
+        subset = order[:scored]
+        p1_32, m2_32 = p1[subset].astype(np.float32), m2[subset].astype(np.float32)
+        threshold2 = np.float32((threshold_px / model.focal_px) ** 2)
         best, best_cost, best_count, tried, needed = None, np.inf, 0, 0, cap
         while tried < min(cap, needed):
             k = min(batch, cap - tried)
             if sample == 1:
                 idx = order[tried:tried + k]
-                hyp = _hypotheses_1point(p1[idx], p2[idx], model.height)
+                hyp = _hypotheses_1point(p1[idx], p2[idx])
             else:
                 hyp = _hypotheses_2point(p1, p2, model.height, _random_pairs(rng, n, k))
-            err = transfer_errors(hyp, p1, m2, model)
+            err2 = _squared_errors(hyp, p1_32, m2_32, model)
             # MSAC cost: inliers count by how well they fit, outliers at the threshold.
-            cost = np.minimum(err, threshold_px) ** 2
-            cost = np.where(np.isfinite(cost), cost, threshold_px ** 2).sum(axis=1)
+            np.minimum(err2, threshold2, out=err2)
+            cost = err2.sum(axis=1)
             cost[~np.all(np.isfinite(hyp), axis=1)] = np.inf
             j = int(np.argmin(cost))
             tried += k
             if cost[j] < best_cost:
                 best, best_cost = hyp[j], cost[j]
-                best_count = int(np.count_nonzero(err[j] < threshold_px))
-                needed = _needed_hypotheses(best_count / n, sample, confidence)
+                best_count = int(np.count_nonzero(err2[j] < threshold2))
+                needed = _needed_hypotheses(best_count / len(subset), sample, confidence)
     else:
         raise ValueError(f'unknown method {method!r}: use 1point, 2point or histogram')
     if best is None:
         raise PoseEstimationError('no motion hypothesis could be formed')
-    motion, inliers = best, transfer_errors(best, p1, m2, model) < threshold_px
-    for _ in range(5):  # refine, re-select the inliers with the better motion, until stable
-        if np.count_nonzero(inliers) < 3:
-            raise PoseEstimationError(
-                f'only {np.count_nonzero(inliers)} correspondences fit the best motion')
-        motion, covariance, rms = refine_motion(
-            motion, p1[inliers], m2[inliers], model, circular=circular_refine)
-        selected = transfer_errors(motion, p1, m2, model) < threshold_px
-        if np.array_equal(selected, inliers):
-            break
-        inliers = selected
+    motion, covariance, rms, inliers = refine_motion(
+        best, p1, m2, model, circular=circular_refine, threshold_px=threshold_px, iterations=20)
     return RansacResult(motion, covariance, inliers, tried, rms)
 
 

@@ -59,7 +59,7 @@ def test_refinement_is_exact_without_noise_and_covariance_reflects_noise(car_cam
     motion = np.array([0.3, 0.02, 0.05])
     p1, _, m2, _ = make_scene(camera, mounting, motion, noise_px=0.0, outliers=0.0)
     model = TransferModel.from_camera(mounting, camera)
-    refined, cov, rms = refine_motion(motion + [0.02, -0.01, 0.01], p1, m2, model)
+    refined, cov, rms, _ = refine_motion(motion + [0.02, -0.01, 0.01], p1, m2, model)
     np.testing.assert_allclose(refined, motion, atol=1e-7)
     assert rms < 1e-4  # undistortion converges to ~1e-8 in normalized units
     # Covariance is consistent with the error over repeated noisy trials.
@@ -67,7 +67,7 @@ def test_refinement_is_exact_without_noise_and_covariance_reflects_noise(car_cam
     for seed in range(30):
         p1, _, m2, _ = make_scene(camera, mounting, motion, noise_px=0.5, outliers=0.0,
                                   seed=seed)
-        est, cov, _ = refine_motion(motion, p1, m2, model)
+        est, cov, _, _ = refine_motion(motion, p1, m2, model)
         errors.append(est - motion)
         sigmas.append(np.sqrt(np.diag(cov)))
     ratio = np.std(errors, axis=0) / np.mean(sigmas, axis=0)
@@ -79,7 +79,7 @@ def test_circular_refinement_stays_on_the_circular_manifold(car_camera):
     motion = circular_motion(0.05, 0.3)
     p1, _, m2, _ = make_scene(camera, mounting, motion, noise_px=0.2, outliers=0.0)
     model = TransferModel.from_camera(mounting, camera)
-    est, _, _ = refine_motion(motion + [0.01, 0.0, 0.0], p1, m2, model, circular=True)
+    est, _, _, _ = refine_motion(motion + [0.01, 0.0, 0.0], p1, m2, model, circular=True)
     assert np.arctan2(est[1], est[0]) == pytest.approx(est[2] / 2, abs=1e-12)
     np.testing.assert_allclose(est, motion, atol=2e-3)
 
@@ -108,3 +108,19 @@ def test_points_behind_the_camera_never_count_as_inliers(car_camera):
     err = transfer_errors(np.array([20.0, 0.0, 0.0]), np.array([[3.0, 0.0]]),
                           np.array([[0.0, 0.0]]), model)
     assert np.isinf(err).all()
+
+
+def test_pipeline_hypotheses_are_the_papers_1point_solver_on_the_axle_camera():
+    from planar_vo.camera import level_to_base
+    from planar_vo.ransac import _hypotheses_1point
+    from planar_vo.solvers import homography_1point, paper_to_planar
+
+    rng = np.random.default_rng(9)
+    p1 = np.c_[rng.uniform(2, 10, 50), rng.uniform(-3, 3, 50)]
+    for motion in (circular_motion(0.1, 0.4), circular_motion(-0.05, -0.3)):
+        p2 = move_points(p1, motion)
+        fast = _hypotheses_1point(p1, p2)
+        np.testing.assert_allclose(fast, np.tile(motion, (50, 1)), atol=1e-12)
+        paper = homography_1point(level_to_base(p1, 1.3), level_to_base(p2, 1.3))
+        planar = paper_to_planar(paper.theta, paper.phi, paper.rho * 1.3)
+        np.testing.assert_allclose(planar, fast, atol=1e-12)
