@@ -91,7 +91,7 @@ SCHEMA: tuple[Param, ...] = (
     Param('quality_level', 0.005, 'Shi-Tomasi quality relative to the best corner.',
           1e-5, 0.5),
     Param('min_distance', 8.0, 'Minimum distance between features, px.', 1.0, 100.0),
-    Param('klt_window', 21, 'Lucas-Kanade window size, px (odd).', 5, 101),
+    Param('klt_window', 15, 'Lucas-Kanade window size, px (odd).', 5, 101),
     Param('klt_levels', 3, 'Pyramid levels above the full image for KLT.', 0, 8),
     Param('fb_threshold', 0.5, 'Forward-backward KLT check: max round-trip error, px.',
           0.05, 10.0),

@@ -45,7 +45,8 @@ class FrameResult:
     pose_covariance: np.ndarray  # (3, 3) over (x, y, yaw)
     twist: np.ndarray  # (3,) vx, vy, yaw rate in base_link
     twist_covariance: np.ndarray  # (3, 3)
-    status: str  # 'first', 'ok', 'no_estimate', 'reinitialized', 'time_jump', 'blank'
+    # 'first', 'ok', 'no_estimate', 'reinitialized', 'time_jump', 'blank', 'skipped'
+    status: str
     message: str = ''  # why the frame gave no estimate
     tracks: int = 0
     correspondences: int = 0
@@ -109,7 +110,7 @@ class VisualOdometry:
         min_inliers: int = 12,
         max_frame_gap: float = 1.0,
     ) -> None:
-        self.tracker = tracker or Tracker()
+        self.tracker = tracker if tracker is not None else Tracker()  # empty is falsy
         self.horizon_margin = horizon_margin
         self.ransac_method = ransac_method
         self.inlier_threshold = inlier_threshold
@@ -118,7 +119,7 @@ class VisualOdometry:
         self.min_inliers = min_inliers
         self.max_frame_gap = max_frame_gap
         self.counters = {'frames': 0, 'estimated': 0, 'no_estimate': 0, 'reinitialized': 0,
-                         'time_jumps': 0, 'blank': 0}
+                         'time_jumps': 0, 'blank': 0, 'skipped': 0}
         self._rng = np.random.default_rng(0)
         self.camera, self.mounting = camera, mounting
         self._update_geometry()
@@ -170,20 +171,29 @@ class VisualOdometry:
         """Add one grey image (uint8, HxW) taken at ``stamp`` (s); return the new state."""
         t0 = time.perf_counter()
         self.counters['frames'] += 1
-        if self._mask is None or self._mask.shape != gray.shape:
+        h, w = gray.shape
+        if self.camera.width and (self.camera.width, self.camera.height) != (w, h):
+            self.counters['skipped'] += 1
+            return self._result(stamp, 'skipped', t0, message=(
+                f'image is {w}x{h} but CameraInfo says {self.camera.width}x'
+                f'{self.camera.height}: frame skipped (binning or ROI needs its own CameraInfo)'))
+        if self._mask is None:
             self.camera = _with_size(self.camera, gray.shape)
             self._update_geometry()
+        if self._last_stamp is not None and stamp == self._last_stamp:
+            self.counters['skipped'] += 1
+            return self._result(stamp, 'skipped', t0, message='duplicate stamp: frame skipped')
+        if float(gray[::8, ::8].std()) < 2.0:  # lens cap, no exposure: keep the tracks
+            self.counters['blank'] += 1
+            return self._result(stamp, 'blank', t0, message='blank image skipped')
         if self._last_stamp is not None and (
-                stamp <= self._last_stamp or stamp - self._last_stamp > self.max_frame_gap):
+                stamp < self._last_stamp or stamp - self._last_stamp > self.max_frame_gap):
             gap = stamp - self._last_stamp
             self.counters['time_jumps'] += 1
             self._restart(stamp, extrapolate=False)
             self._detect(is_reference=True, gray=gray)
             return self._result(stamp, 'time_jump', t0,
                                 message=f'time jumped by {gap:+.3f} s: tracking restarted')
-        if float(gray.std()) < 2.0:  # lens cap, dropped exposure: keep tracks for the next
-            self.counters['blank'] += 1
-            return self._result(stamp, 'blank', t0, message='blank image skipped')
         previous, self._last_stamp = self._last_stamp, stamp
         if self._ref_stamp is None:
             self._ref_stamp = stamp

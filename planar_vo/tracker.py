@@ -22,7 +22,7 @@ class Tracker:
         max_features: int = 400,
         quality_level: float = 0.005,
         min_distance: float = 8.0,
-        window: int = 21,
+        window: int = 15,
         levels: int = 3,
         fb_threshold: float = 0.5,
         grid: tuple[int, int] = (4, 8),

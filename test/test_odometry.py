@@ -80,8 +80,8 @@ def test_lost_tracking_reinitialises_and_extrapolates_the_unseen_motion():
     lost = set(range(30, 40))
 
     def corrupt(k, image, stamp):
-        if k in lost:  # a different, unrelated scene: every track dies
-            image = np.ascontiguousarray(np.rot90(image, 2))
+        if k in lost:  # sensor noise only: nothing can be tracked from frame to frame
+            image = np.random.default_rng(k).integers(0, 256, image.shape, dtype=np.uint8)
         return image, stamp
 
     results, truth = run_scenario('straight', 60, corrupt=corrupt)
@@ -101,3 +101,31 @@ def test_compose_propagates_covariance():
     # A yaw uncertainty of 0.1 rad becomes 0.1 m sideways (along -x) after 1 m.
     assert cov[0, 0] == pytest.approx(0.01)
     assert cov[1, 1] == pytest.approx(0.0, abs=1e-15)
+
+
+def test_duplicate_stamps_and_wrong_sizes_are_skipped_not_restarts():
+    def corrupt(k, image, stamp):
+        if k == 20:
+            return image, 19 / 30.0  # the driver sent frame 19's stamp again
+        if k == 25:
+            return image[:240, :320].copy(), stamp  # binned image, full-size CameraInfo
+        return image, stamp
+
+    results, truth = run_scenario('gentle', 40, corrupt=corrupt)
+    assert results[20].status == 'skipped' and 'duplicate' in results[20].message
+    assert results[25].status == 'skipped' and '320x240' in results[25].message
+    assert [r.status for r in results[26:]] == ['ok'] * 14
+    m = evaluate.metrics(poses(results), truth)
+    assert m['final_drift_percent'] < 0.5, m
+
+
+def test_blank_frame_after_a_gap_does_not_become_the_reference():
+    def corrupt(k, image, stamp):
+        if k == 30:
+            return np.zeros_like(image), stamp + 5.0
+        return image, (stamp + 5.0 if k > 30 else stamp)
+
+    results, _ = run_scenario('straight', 40, corrupt=corrupt)
+    assert results[30].status == 'blank'
+    assert results[31].status == 'time_jump'
+    assert [r.status for r in results[32:]] == ['ok'] * 8
