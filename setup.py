@@ -43,6 +43,8 @@ setup(
             'planar_vo_paper_experiment = planar_vo.paper_experiment:main',
             'planar_vo_node = planar_vo.node:main',
             'planar_vo_replay = planar_vo.replay:main',
+            'planar_vo_demo = planar_vo.demo:main',
+            'planar_vo_bench = planar_vo.benchmark:main',
         ],
     },
 )

@@ -148,6 +148,36 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
     return out
 
 
+def run_live_benchmark(bag: Path, params_file: Path, *, frames: int = 150,
+                       rates: tuple[float, ...] = (15.0, 30.0, 45.0, 60.0, 90.0, 120.0)
+                       ) -> dict[str, Any]:
+    """Node latency at each rate, and the highest rate it keeps up with (no frame dropped).
+
+    The node subscribes reliably with a queue of 5: a frame it cannot keep up with is
+    dropped from that queue, so a missing odometry message is a frame the node missed.
+    """
+    from planar_vo.live import BagStream, LiveSession
+
+    stream = BagStream.read(bag, limit=frames)
+    session = LiveSession(params_file, image_type=stream.image_type)
+    rows = []
+    try:
+        session.wait_connected()
+        for rate in rates:
+            session.reset()
+            session.handshake(stream.frames[0])
+            session.play(stream.frames[1:], rate=rate)
+            stamps = [f[0] for f in stream.frames[1:]]
+            latency = session.latencies_ms(stamps)
+            rows.append({'rate_hz': rate, 'sent': len(stamps), 'received': len(latency),
+                         'median_ms': float(np.median(latency)) if len(latency) else None,
+                         'p95_ms': float(np.percentile(latency, 95)) if len(latency) else None})
+    finally:
+        session.close()
+    kept_up = [r['rate_hz'] for r in rows if r['received'] == r['sent']]
+    return {'rates': rows, 'highest_rate_without_drops_hz': max(kept_up, default=None)}
+
+
 def _ground_pairs(vo: VisualOdometry, ref_px: np.ndarray,
                   cur_px: np.ndarray) -> tuple[np.ndarray, ...] | None:
     """Ground correspondences exactly as the pipeline forms them."""
@@ -174,6 +204,12 @@ def main(argv: list[str] | None = None) -> int:
                         help='rosbag2 bag (default: the bundled bags/default)')
     parser.add_argument('--params', help='params YAML (default: built-in defaults)')
     parser.add_argument('--frames', type=int, help='use only the first N images')
+    parser.add_argument('--live', action='store_true',
+                        help='also start planar_vo_node and measure its latency and the '
+                             'highest frame rate it sustains over DDS (loopback only)')
+    parser.add_argument('--node-params', default=str(DEFAULT_BAG.parent.parent / 'config'
+                                                      / 'planar_vo.yaml'),
+                        help='params YAML for the node with --live')
     parser.add_argument('--json', action='store_true', help='print one JSON object')
     args = parser.parse_args(argv)
     try:
@@ -182,6 +218,12 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError('--frames must be at least 2')
         result = run_benchmark(Path(args.bag), params, frames=args.frames,
                                progress=sys.stderr.isatty())
+        if args.live:
+            from planar_vo.live import LiveError
+            try:
+                result['live'] = run_live_benchmark(Path(args.bag), Path(args.node_params))
+            except LiveError as err:
+                raise OSError(str(err)) from None
     except (BagError, ConfigError, ImageError, OSError) as err:
         print(f'planar_vo_bench: error: {err}', file=sys.stderr)
         return 2
@@ -196,6 +238,14 @@ def main(argv: list[str] | None = None) -> int:
     print('ratios (bar):')
     for name, value in result['ratios'].items():
         print(f'  {name:40s} {value:8.2f}   ({result["bars"][name]})')
+    if 'live' in result:
+        print('planar_vo_node over DDS (image sent -> odom received):')
+        for row in result['live']['rates']:
+            print(f'  {row["rate_hz"]:5.0f} Hz: {row["received"]}/{row["sent"]} frames, '
+                  f'latency median {row["median_ms"] or float("nan"):.1f} ms, '
+                  f'95th percentile {row["p95_ms"] or float("nan"):.1f} ms')
+        print(f'  highest rate without dropped frames: '
+              f'{result["live"]["highest_rate_without_drops_hz"]} Hz')
     return 0
 
 

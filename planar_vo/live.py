@@ -1,0 +1,211 @@
+"""Play a bag into a running ``planar_vo_node`` over DDS and measure what comes back.
+
+Used by ``planar_vo_demo`` (accuracy and latency at the bag's real rate) and by
+``planar_vo_bench --live`` (the highest rate the node sustains without dropping frames).
+DDS stays on this machine: ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and a domain id of
+its own are set before rclpy starts, unless the caller set them already.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planar_vo.bag import BagError, open_reader
+from planar_vo.messages import stamp_to_seconds
+
+__all__ = ['BagStream', 'LiveSession', 'LiveError', 'local_dds_env']
+
+IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
+
+
+class LiveError(RuntimeError):
+    """The node did not start, answer, or connect in time."""
+
+
+def local_dds_env() -> dict[str, str]:
+    """Return the environment with DDS kept on loopback and a domain id of its own."""
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    os.environ.pop('ROS_LOCALHOST_ONLY', None)
+    os.environ.setdefault('ROS_DOMAIN_ID', str(101 + os.getpid() % 100))
+    return dict(os.environ)
+
+
+@dataclass
+class BagStream:
+    """A bag's camera messages, kept as CDR bytes so they are published as they were."""
+
+    frames: list[tuple[float, bytes, bytes]]  # (image stamp, image CDR, camera_info CDR)
+    image_type: str
+    truth: dict[float, np.ndarray] = field(default_factory=dict)  # stamp → (x, y, yaw)
+
+    @classmethod
+    def read(cls, path: str | Path, limit: int | None = None) -> BagStream:
+        """Pair every image with the CameraInfo of the same stamp (or the latest one)."""
+        images, infos, truth, image_type = [], {}, {}, None
+        with open_reader(path) as reader:
+            for conn, _, raw in reader.messages():
+                if conn.msgtype in IMAGE_TYPES:
+                    image_type = conn.msgtype
+                    msg = reader.deserialize(raw, conn.msgtype)
+                    images.append((stamp_to_seconds(msg.header.stamp), bytes(raw)))
+                elif conn.msgtype == 'sensor_msgs/msg/CameraInfo':
+                    msg = reader.deserialize(raw, conn.msgtype)
+                    infos[stamp_to_seconds(msg.header.stamp)] = bytes(raw)
+                elif conn.msgtype == 'nav_msgs/msg/Odometry':
+                    msg = reader.deserialize(raw, conn.msgtype)
+                    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+                    yaw = np.arctan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y ** 2 + q.z ** 2))
+                    truth[stamp_to_seconds(msg.header.stamp)] = np.array([p.x, p.y, yaw])
+        if not images or not infos:
+            raise BagError(f'{path} needs images and CameraInfo to be played into the node')
+        latest = next(iter(infos.values()))
+        frames = []
+        for stamp, raw in images[:limit]:
+            latest = infos.get(stamp, latest)
+            frames.append((stamp, raw, latest))
+        return cls(frames, image_type, truth)
+
+
+class LiveSession:
+    """A planar_vo_node subprocess and an rclpy node that feeds it and listens to it."""
+
+    def __init__(self, params_file: str | Path, *, extra_args: tuple[str, ...] = (),
+                 image_type: str = IMAGE_TYPES[0], log: Path | None = None) -> None:
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+
+        env = local_dds_env()
+        compressed = image_type.endswith('CompressedImage')
+        exe = Path(sys.executable).parent / 'planar_vo_node'
+        self._log = open(log, 'w') if log else subprocess.DEVNULL  # noqa: SIM115
+        self.proc = subprocess.Popen(
+            [str(exe), '--ros-args', '--params-file', str(params_file),
+             '-p', 'image_reliability:=reliable',
+             '-p', f'image_transport:={"compressed" if compressed else "raw"}',
+             '-r', 'image:=/camera/image_raw', '-r', 'camera_info:=/camera/camera_info',
+             *extra_args],
+            stdout=self._log, stderr=subprocess.STDOUT, env=env)
+        self.ctx = Context()
+        rclpy.init(context=self.ctx)
+        self.node = rclpy.create_node('planar_vo_player', context=self.ctx)
+        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        topic = '/camera/image_raw' + ('/compressed' if compressed else '')
+        self.image_pub = self.node.create_publisher(
+            CompressedImage if compressed else Image, topic, reliable)
+        self.info_pub = self.node.create_publisher(CameraInfo, '/camera/camera_info', reliable)
+        self.received: dict[float, tuple[float, Any]] = {}  # stamp → (receive time, odom)
+        self.sent: dict[float, float] = {}  # stamp → send time
+        self._lock = threading.Lock()
+        from nav_msgs.msg import Odometry
+        self.node.create_subscription(Odometry, '/odom', self._on_odom, 100)
+        self.executor = SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+        self._spin = threading.Thread(target=self.executor.spin, daemon=True)
+        self._spin.start()
+
+    def _on_odom(self, msg: Any) -> None:
+        now = time.perf_counter()
+        stamp = stamp_to_seconds(msg.header.stamp)
+        with self._lock:
+            self.received.setdefault(stamp, (now, msg))
+
+    def wait_connected(self, timeout: float = 30.0) -> None:
+        """Wait for discovery both ways (matched counts, not a fixed sleep)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if self.proc.poll() is not None:
+                raise LiveError(f'planar_vo_node exited with status {self.proc.returncode}')
+            if (self.image_pub.get_subscription_count() and self.info_pub.get_subscription_count()
+                    and self.node.count_publishers('/odom')):
+                return
+            time.sleep(0.01)
+        raise LiveError(f'planar_vo_node did not connect within {timeout:.0f} s')
+
+    def send(self, frame: tuple[float, bytes, bytes]) -> None:
+        """Publish one frame's CameraInfo then its image, as CDR bytes."""
+        stamp, image, info = frame
+        self.info_pub.publish(info)
+        with self._lock:
+            self.sent.setdefault(stamp, time.perf_counter())
+        self.image_pub.publish(image)
+
+    def handshake(self, frame: tuple[float, bytes, bytes], timeout: float = 30.0) -> None:
+        """Send the first frame until its odom comes back: the node is then calibrated."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            self.send(frame)
+            if self.wait_for(frame[0], 0.2):
+                return
+        raise LiveError('planar_vo_node never answered the first frame')
+
+    def wait_for(self, stamp: float, timeout: float) -> bool:
+        """True once odom for ``stamp`` has arrived."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if stamp in self.received:
+                return True
+            time.sleep(0.002)
+        return False
+
+    def play(self, frames: list[tuple[float, bytes, bytes]], rate: float | None = None,
+             settle: float = 2.0) -> None:
+        """Publish frames at their own stamps' pace (``rate=None``) or at ``rate`` Hz."""
+        start = time.perf_counter()
+        first = frames[0][0]
+        for i, frame in enumerate(frames):
+            due = start + ((frame[0] - first) if rate is None else i / rate)
+            while time.perf_counter() < due:
+                time.sleep(min(0.001, max(due - time.perf_counter(), 0)))
+            self.send(frame)
+        self.wait_for(frames[-1][0], settle)
+
+    def reset(self, timeout: float = 10.0) -> None:
+        """Call ~/reset and forget what was sent and received."""
+        from std_srvs.srv import Trigger
+        client = self.node.create_client(Trigger, '/planar_vo/reset')
+        if not client.wait_for_service(timeout_sec=timeout):
+            raise LiveError('~/reset service not available')
+        future = client.call_async(Trigger.Request())
+        end = time.monotonic() + timeout
+        while not future.done() and time.monotonic() < end:
+            time.sleep(0.005)
+        self.node.destroy_client(client)
+        with self._lock:
+            self.received.clear()
+            self.sent.clear()
+
+    def latencies_ms(self, stamps: list[float]) -> np.ndarray:
+        """Send → odom-received time of each stamp that came back, ms."""
+        with self._lock:
+            return np.array([1e3 * (self.received[s][0] - self.sent[s]) for s in stamps
+                             if s in self.received and s in self.sent])
+
+    def close(self) -> int:
+        """Stop the node like Ctrl-C; return its exit status."""
+        import rclpy
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.ctx)
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(15)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self._log is not subprocess.DEVNULL:
+            self._log.close()
+        return self.proc.returncode
