@@ -12,21 +12,17 @@ def poses(results):
     return np.array([r.pose for r in results])
 
 
-# Bounds per scenario, from what the pipeline reaches with margin (measured: t_rel 0.04-0.2 %):
-# tight turns at low speed see the ground sweep sideways and lose more tracks per frame;
-# the obstacle scenario has many outlier tracks near the horizon margin.
-@pytest.mark.parametrize('scenario, t_rel, r_rel', [
-    ('straight', 0.3, 1.5),
-    ('gentle', 0.3, 1.5),
-    ('tight', 0.5, 3.0),
-    ('obstacles', 0.5, 3.0),
-])
-def test_scenarios_within_bounds(scenario, t_rel, r_rel):
+# Measured on 150 frames (5 s): t_rel 0.02-0.07 %, r_rel 0.3-0.9 deg/100m, scale within
+# 0.02 %. The bounds leave room for other OpenCV builds: t_rel 0.3 % (the design bar);
+# r_rel 2 deg/100m because these paths are 12-32 m, where a few hundredths of a degree of
+# yaw noise is already most of a degree per 100 m.
+@pytest.mark.parametrize('scenario', ['straight', 'gentle', 'tight', 'obstacles'])
+def test_scenarios_within_bounds(scenario):
     results, truth = run_scenario(scenario, 150)
     assert all(r.status in ('first', 'ok') for r in results)
     m = evaluate.metrics(poses(results), truth)
-    assert m['t_rel_percent'] < t_rel, m
-    assert m['r_rel_deg_per_100m'] < r_rel, m
+    assert m['t_rel_percent'] < 0.3, m
+    assert m['r_rel_deg_per_100m'] < 2.0, m
     assert abs(m['scale_ratio'] - 1) < 0.005, m
 
 
