@@ -45,6 +45,7 @@ setup(
             'planar_vo_replay = planar_vo.replay:main',
             'planar_vo_demo = planar_vo.demo:main',
             'planar_vo_bench = planar_vo.benchmark:main',
+            'planar_vo_synth = planar_vo.synth:main',
         ],
     },
 )
