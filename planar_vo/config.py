@@ -142,7 +142,9 @@ def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, 
     except OSError as err:
         raise ConfigError(f'cannot read params file {path}: {err.strerror}') from err
     except yaml.YAMLError as err:
-        raise ConfigError(f'params file {path} is not valid YAML: {err}') from err
+        mark = getattr(err, 'problem_mark', None)
+        where = f' (line {mark.line + 1}: {getattr(err, "problem", "")})' if mark else ''
+        raise ConfigError(f'params file {path} is not valid YAML{where}') from err
     if data is None:
         return defaults()
     section = None

@@ -27,11 +27,13 @@ import functools
 import math
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from planar_vo.camera import Mounting
 
 WHEELBASE = 2.7
 EPOCH_NS = 1_700_000_000 * 1_000_000_000
@@ -40,7 +42,6 @@ COMPRESSED_TOPIC = '/camera/image_raw/compressed'
 INFO_TOPIC = '/camera/camera_info'
 ODOM_TOPIC = '/ground_truth/odom'
 OPTICAL_FRAME = 'camera_optical_frame'
-R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
 # --------------------------------------------------------------------------------------------
@@ -48,52 +49,18 @@ R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 # --------------------------------------------------------------------------------------------
 
 
-def rot_x(a: float) -> np.ndarray:
-    """Rotation about x by ``a`` rad."""
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+# The realistic set-up: 1.2 m ahead of the rear axle, 1.25 m up, pitched 8 degrees down.
+DEFAULT_MOUNTING = Mounting(x=1.2, y=0.0, height=1.25, pitch=math.radians(8.0))
 
 
-def rot_y(a: float) -> np.ndarray:
-    """Rotation about y by ``a`` rad."""
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def rot_z(a: float) -> np.ndarray:
-    """Rotation about z by ``a`` rad."""
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-@dataclass(frozen=True)
-class Mounting:
-    """Camera body frame relative to base_link (m, rad); positive pitch looks down."""
-
-    camera_x: float = 1.2
-    camera_y: float = 0.0
-    camera_height: float = 1.25
-    camera_roll: float = 0.0
-    camera_pitch: float = math.radians(8.0)
-    camera_yaw: float = 0.0
-
-    def r_base_body(self) -> np.ndarray:
-        """Rotation camera body → base_link."""
-        return rot_z(self.camera_yaw) @ rot_y(self.camera_pitch) @ rot_x(self.camera_roll)
-
-    def r_base_optical(self) -> np.ndarray:
-        """Rotation camera optical → base_link."""
-        return self.r_base_body() @ R_BODY_OPTICAL
-
-    def t_base_camera(self) -> np.ndarray:
-        """Camera position in base_link."""
-        return np.array([self.camera_x, self.camera_y, self.camera_height])
-
-    def params_yaml(self) -> str:
-        """Node/replay parameter file (``planar_vo: ros__parameters:``) for this mounting."""
-        lines = ['planar_vo:', '  ros__parameters:']
-        lines += [f'    {k}: {float(v)!r}' for k, v in asdict(self).items()]
-        return '\n'.join(lines) + '\n'
+def params_yaml(mounting: Mounting) -> str:
+    """Node/replay parameter file (``planar_vo: ros__parameters:``) for this mounting."""
+    values = {'camera_x': mounting.x, 'camera_y': mounting.y,
+              'camera_height': mounting.height, 'camera_roll': mounting.roll,
+              'camera_pitch': mounting.pitch, 'camera_yaw': mounting.yaw}
+    lines = ['planar_vo:', '  ros__parameters:']
+    lines += [f'    {k}: {float(v)!r}' for k, v in values.items()]
+    return '\n'.join(lines) + '\n'
 
 
 @dataclass(frozen=True)
@@ -412,7 +379,7 @@ def make_obstacles(traj: Trajectory, scenario: Scenario, seed: int,
     total = s[-1]
     n = int(round(scenario.obstacles_per_100m * total / 100.0))
     # Vehicle body points (rear axle frame) that must stay clear of every box.
-    cam_x = 1.2 if mounting is None else mounting.camera_x
+    cam_x = DEFAULT_MOUNTING.x if mounting is None else mounting.x
     body = np.array([-0.9, 0.0, 1.35, 2.7, 3.6, cam_x])
     vx = (traj.x[:, None] + body[None, :] * np.cos(traj.yaw)[:, None]).ravel()
     vy = (traj.y[:, None] + body[None, :] * np.sin(traj.yaw)[:, None]).ravel()
@@ -461,7 +428,7 @@ class Renderer:
                  noise_sigma: float = 1.5, seed: int = 0, illumination: bool = True,
                  haze: bool = True) -> None:
         self.camera = camera or SynthCamera()
-        self.mounting = mounting or Mounting()
+        self.mounting = mounting or DEFAULT_MOUNTING
         self.texture = texture if texture is not None else make_ground_texture(seed)
         self.boxes = list(boxes)
         self.max_range = float(max_range)
@@ -471,10 +438,10 @@ class Renderer:
         cam, mnt = self.camera, self.mounting
         h, w = cam.height, cam.width
         rays = cam.rays().reshape(-1, 3)
-        d = rays @ mnt.r_base_optical().T
+        d = rays @ mnt.base_from_optical.T
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         self.dirs = d.astype(np.float32)  # unit rays in base_link
-        self.origin = mnt.t_base_camera()
+        self.origin = mnt.position
         cz = self.origin[2]
         if cz <= 0:
             raise ValueError('camera_height must be > 0')
@@ -703,7 +670,7 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
     if scenario not in SCENARIOS:
         raise ValueError(f'unknown scenario {scenario!r} (choose from {", ".join(SCENARIOS)})')
     sc = SCENARIOS[scenario]
-    mounting = mounting or Mounting()
+    mounting = mounting or DEFAULT_MOUNTING
     traj = make_trajectory(sc, frames, rate, seed)
     boxes = make_obstacles(traj, sc, seed, mounting) if obstacles else []
     renderer = Renderer(camera, mounting, make_ground_texture(seed), boxes,
@@ -722,7 +689,7 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
 
     t0 = time.monotonic()
     camera = camera or SynthCamera()
-    mounting = mounting or Mounting()
+    mounting = mounting or DEFAULT_MOUNTING
     renderer, traj = render_scenario(scenario, frames, seed, rate=rate, camera=camera,
                                      mounting=mounting, noise_sigma=noise_sigma,
                                      max_range=max_range, obstacles=obstacles)
@@ -748,7 +715,7 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                 print(f'\rplanar_vo_synth: frame {k + 1}/{frames}', end=end, file=sys.stderr,
                       flush=True)
     if params_out is not None:
-        Path(params_out).write_text(mounting.params_yaml())
+        Path(params_out).write_text(params_yaml(mounting))
     return SynthResult(Path(out_path), scenario, frames, rate, seed, camera, mounting, traj,
                        len(renderer.boxes), time.monotonic() - t0)
 
@@ -865,8 +832,8 @@ def main(argv=None) -> int:
                                 fy=args.fy if args.fy is not None else args.fx,
                                 cx=args.cx, cy=args.cy,
                                 dist=tuple(args.dist) if args.dist else None)
-    mounting = Mounting(args.camera_x, args.camera_y, args.camera_height, args.camera_roll,
-                        args.camera_pitch, args.camera_yaw)
+    mounting = Mounting(x=args.camera_x, y=args.camera_y, height=args.camera_height,
+                        roll=args.camera_roll, pitch=args.camera_pitch, yaw=args.camera_yaw)
     from planar_vo.bag import BagError
 
     try:
