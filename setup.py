@@ -14,7 +14,6 @@ WHEELS = [
     'numpy',
     'pyyaml',
     'rosbags',
-    'mcap',
 ]
 
 setup(
