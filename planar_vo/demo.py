@@ -19,6 +19,7 @@ from planar_vo import evaluate
 from planar_vo.bag import BagError
 from planar_vo.config import ConfigError, load_params_file
 from planar_vo.live import BagStream, LiveError, LiveSession
+from planar_vo.messages import planar_pose
 from planar_vo.replay import replay
 
 __all__ = ['main', 'run_demo']
@@ -26,10 +27,6 @@ __all__ = ['main', 'run_demo']
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_BAG = ROOT / 'bags' / 'default'
 DEFAULT_PARAMS = ROOT / 'config' / 'planar_vo.yaml'
-
-
-def _yaw(q: Any) -> float:
-    return float(np.arctan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y ** 2 + q.z ** 2)))
 
 
 def run_demo(bag: Path, params_file: Path, *, plot: Path | None = None,
@@ -46,9 +43,7 @@ def run_demo(bag: Path, params_file: Path, *, plot: Path | None = None,
         status = session.close()
     stamps = [f[0] for f in stream.frames]
     got = [s for s in stamps if s in session.received]
-    live = np.array([[o.pose.pose.position.x, o.pose.pose.position.y,
-                      _yaw(o.pose.pose.orientation)]
-                     for o in (session.received[s][1] for s in got)]).reshape(-1, 3)
+    live = np.array([planar_pose(session.received[s][1].pose.pose) for s in got]).reshape(-1, 3)
     latency = session.latencies_ms(stamps[1:])
     out: dict[str, Any] = {
         'bag': str(bag), 'frames_sent': len(stamps), 'odom_received': len(got),

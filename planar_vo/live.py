@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from planar_vo.bag import BagError, open_reader
-from planar_vo.messages import stamp_to_seconds
+from planar_vo.messages import planar_pose, stamp_to_seconds
 
 __all__ = ['BagStream', 'LiveSession', 'LiveError', 'local_dds_env']
 
@@ -63,9 +63,7 @@ class BagStream:
                     infos[stamp_to_seconds(msg.header.stamp)] = bytes(raw)
                 elif conn.msgtype == 'nav_msgs/msg/Odometry':
                     msg = reader.deserialize(raw, conn.msgtype)
-                    p, q = msg.pose.pose.position, msg.pose.pose.orientation
-                    yaw = np.arctan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y ** 2 + q.z ** 2))
-                    truth[stamp_to_seconds(msg.header.stamp)] = np.array([p.x, p.y, yaw])
+                    truth[stamp_to_seconds(msg.header.stamp)] = planar_pose(msg.pose.pose)
         if not images or not infos:
             raise BagError(f'{path} needs images and CameraInfo to be played into the node')
         latest = next(iter(infos.values()))

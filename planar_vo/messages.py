@@ -26,7 +26,7 @@ from planar_vo.camera import CameraModel
 
 __all__ = ['ImageError', 'UNOBSERVED_VARIANCE', 'SUPPORTED_ENCODINGS', 'image_to_gray',
            'compressed_to_gray', 'camera_info_to_model', 'stamp_to_seconds', 'covariance_6x6',
-           'yaw_to_quaternion', 'odometry_from_result', 'transform_from_result',
+           'yaw_to_quaternion', 'planar_pose', 'odometry_from_result', 'transform_from_result',
            'debug_image', 'gray_to_image']
 
 UNOBSERVED_VARIANCE = 1e6  # z, roll, pitch (and their rates): unobserved by a planar model
@@ -153,6 +153,13 @@ def covariance_6x6(cov3: np.ndarray) -> np.ndarray:
 def yaw_to_quaternion(yaw: float) -> tuple[float, float, float, float]:
     """(x, y, z, w) of a rotation by ``yaw`` about z."""
     return 0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)
+
+
+def planar_pose(pose: Any) -> np.ndarray:
+    """geometry_msgs/Pose → ``[x, y, yaw]`` (yaw of the quaternion's rotation about z)."""
+    q = pose.orientation
+    yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return np.array([pose.position.x, pose.position.y, yaw])
 
 
 def odometry_from_result(result: Any, header_stamp: Any, odom_frame: str, base_frame: str,

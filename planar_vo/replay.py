@@ -26,6 +26,7 @@ from planar_vo.messages import (
     compressed_to_gray,
     image_to_gray,
     odometry_from_result,
+    planar_pose,
     stamp_to_seconds,
 )
 from planar_vo.odometry import FrameResult, VisualOdometry
@@ -69,10 +70,6 @@ class ReplayResult:
     warnings: list[str]
     frames: int
     timing_ms: dict[str, float]
-
-
-def _yaw(q: Any) -> float:
-    return float(np.arctan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z)))
 
 
 def _pick_topic(connections: list, types: tuple[str, ...], wanted: str | None, what: str,
@@ -137,9 +134,7 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
                             camera.D, vo.camera.D):
                         vo.set_camera(camera)
                 elif truth_conn is not None and conn.topic == truth_conn.topic:
-                    p = msg.pose.pose
-                    truth.add(stamp_to_seconds(msg.header.stamp),
-                              [p.position.x, p.position.y, _yaw(p.orientation)])
+                    truth.add(stamp_to_seconds(msg.header.stamp), planar_pose(msg.pose.pose))
                 else:
                     frames += 1
                     bar.update(frames)
