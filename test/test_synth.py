@@ -1,5 +1,6 @@
 """planar_vo_synth: deterministic bags whose geometry agrees with the pipeline's camera model."""
 
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -8,10 +9,22 @@ import numpy as np
 import pytest
 
 from planar_vo import synth
-from planar_vo.bag import open_reader
+from planar_vo.bag import BagError, open_reader
+from planar_vo.camera import Mounting
 from test.conftest import synth_camera_model
 
 SYNTH = str(Path(sys.executable).parent / 'planar_vo_synth')
+
+SMALL = synth.SynthCamera.scaled(160, 120)
+
+
+def read_all(path):
+    out = {}
+    with open_reader(path) as reader:
+        for conn, stamp, raw in reader.messages():
+            out.setdefault(conn.topic, []).append(
+                (conn.msgtype, stamp, reader.deserialize(raw, conn.msgtype)))
+    return out
 
 
 def small_bag(path, **kw):
@@ -105,3 +118,177 @@ def test_cli_errors_are_one_line(tmp_path, args, message):
 def test_cli_refuses_an_existing_output(tmp_path):
     result = subprocess.run([SYNTH, str(tmp_path)], capture_output=True, text=True)
     assert result.returncode == 2 and 'already exists' in result.stderr
+
+
+def test_topics_types_counts_stamps_camera_info(tmp_path):
+    synth.generate_bag(tmp_path / 'b', 'default', frames=12, seed=3, camera=SMALL)
+    msgs = read_all(tmp_path / 'b')
+    assert set(msgs) == {synth.IMAGE_TOPIC, synth.INFO_TOPIC, synth.ODOM_TOPIC}
+    assert {m[0] for m in msgs[synth.IMAGE_TOPIC]} == {'sensor_msgs/msg/Image'}
+    assert {m[0] for m in msgs[synth.INFO_TOPIC]} == {'sensor_msgs/msg/CameraInfo'}
+    assert {m[0] for m in msgs[synth.ODOM_TOPIC]} == {'nav_msgs/msg/Odometry'}
+    for topic in msgs:
+        assert len(msgs[topic]) == 12
+    for k, (im, info, od) in enumerate(zip(msgs[synth.IMAGE_TOPIC], msgs[synth.INFO_TOPIC],
+                                           msgs[synth.ODOM_TOPIC], strict=True)):
+        ns = synth.EPOCH_NS + round(k * 1e9 / 30)
+        for _, stamp, m in (im, info, od):
+            assert stamp == ns
+            assert m.header.stamp.sec * 10**9 + m.header.stamp.nanosec == ns
+        img = im[2]
+        assert (img.encoding, img.width, img.height, img.step) == ('mono8', 160, 120, 160)
+        assert img.header.frame_id == 'camera_optical_frame'
+        ci = info[2]
+        assert ci.header.frame_id == 'camera_optical_frame'
+        assert ci.distortion_model == 'plumb_bob' and len(ci.d) == 5
+        np.testing.assert_allclose(ci.k.reshape(3, 3), SMALL.k_matrix())
+        np.testing.assert_allclose(ci.r, np.eye(3).ravel())
+        np.testing.assert_allclose(ci.p.reshape(3, 4)[:, :3], SMALL.k_matrix())
+        np.testing.assert_allclose(ci.p.reshape(3, 4)[:, 3], 0)
+        o = od[2]
+        assert o.header.frame_id == 'odom' and o.child_frame_id == 'base_link'
+    first = msgs[synth.ODOM_TOPIC][0][2].pose.pose
+    assert (first.position.x, first.position.y, first.position.z) == (0, 0, 0)
+    assert (first.orientation.z, first.orientation.w) == (0, 1)
+
+
+def test_different_seed_different_images(tmp_path):
+    synth.generate_bag(tmp_path / 'a', 'default', frames=6, seed=3, camera=SMALL)
+    synth.generate_bag(tmp_path / 'c', 'default', frames=6, seed=0, camera=SMALL)
+    a = read_all(tmp_path / 'a')[synth.IMAGE_TOPIC]
+    c = read_all(tmp_path / 'c')[synth.IMAGE_TOPIC]
+    assert not np.array_equal(a[5][2].data, c[5][2].data)
+
+
+@pytest.mark.parametrize('name', sorted(synth.SCENARIOS))
+def test_bicycle_model(name):
+    rate = 30.0
+    traj = synth.make_trajectory(synth.SCENARIOS[name], 300, rate, seed=1)
+    dt = 1 / rate
+    assert (traj.x[0], traj.y[0], traj.yaw[0]) == (0, 0, 0)
+    # yaw rate = v * curvature (bicycle model at the rear axle)
+    np.testing.assert_allclose(traj.omega, traj.v * np.tan(traj.steer) / traj.wheelbase)
+    # pose increments agree with the twist (trapezoid rule, smooth controls)
+    dyaw = np.diff(traj.yaw)
+    np.testing.assert_allclose(dyaw, dt * (traj.omega[1:] + traj.omega[:-1]) / 2, atol=2e-5)
+    dx, dy = np.diff(traj.x), np.diff(traj.y)
+    ds = np.hypot(dx, dy)
+    np.testing.assert_allclose(ds, dt * (traj.v[1:] + traj.v[:-1]) / 2, rtol=1e-3)
+    # nonholonomic: the chord of each step points along the mean heading (no sideslip)
+    heading = np.arctan2(dy, dx)
+    err = np.angle(np.exp(1j * (heading - (traj.yaw[1:] + traj.yaw[:-1]) / 2)))
+    assert np.max(np.abs(err)) < 1e-4
+    # smooth controls: no jumps
+    assert np.max(np.abs(np.diff(traj.v))) < 0.1
+    assert np.max(np.abs(np.diff(traj.steer))) < 0.02
+    assert 0.06 <= traj.v.min() and traj.v.max() * dt <= 0.27 + 1e-9
+
+
+def test_projection_matches_renderer():
+    """A bright dot on the ground lands where cv2.projectPoints says it should."""
+    n, texel = 1024, 0.02  # one dot per 20 m tile, nothing else
+    img = np.zeros((n, n), np.float32)
+    c = 200  # dot centre at texel 200 → X = Y = (200 + 0.5) * texel
+    yy, xx = np.mgrid[0:n, 0:n]
+    img += 250 * np.exp(-((xx - c) ** 2 + (yy - c) ** 2) / (2 * 0.7**2))
+    tex = synth.Texture(img, texel)
+    mnt = Mounting(x=1.2, y=0.1, height=1.25, roll=0.02, pitch=0.14, yaw=0.03)
+    cam = synth.SynthCamera()
+    r = synth.Renderer(cam, mnt, tex, noise_sigma=0, illumination=False, haze=False,
+                       max_range=15)
+    r.sky[:] = 0
+    r.vignette[:] = 1
+    p_world = np.array([(c + 0.5) * texel, (c + 0.5) * texel, 0.0])
+    # choose a vehicle pose that puts the dot 4 m ahead and 1 m to the left of the axle
+    yaw = 0.3
+    rel = np.array([4.0, 1.0])
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    pos = p_world[:2] - np.array([cy * rel[0] - sy * rel[1], sy * rel[0] + cy * rel[1]])
+    out = r.render(pos[0], pos[1], yaw).astype(np.float64)
+    # expected pixel: world → base → camera optical → K + distortion
+    p_base = np.array([rel[0], rel[1], 0.0])
+    p_opt = mnt.base_from_optical.T @ (p_base - mnt.position)
+    u, v = cam.project(p_opt[None])[0]
+    w = np.where(out > 20, out, 0)
+    vs, us = np.mgrid[0:out.shape[0], 0:out.shape[1]]
+    cu, cv = (w * us).sum() / w.sum(), (w * vs).sum() / w.sum()
+    assert abs(cu - u) < 0.3 and abs(cv - v) < 0.3, (cu, cv, u, v)
+
+
+def test_rays_round_trip():
+    cam = synth.SynthCamera()
+    rays = cam.rays()
+    px = np.array([[0, 0], [639, 479], [320, 240], [100, 400], [600, 30]])
+    back = cam.project(rays[px[:, 1], px[:, 0]])
+    np.testing.assert_allclose(back, px, atol=1e-6)
+
+
+def test_obstacles_are_rendered_and_off_path():
+    r, traj = synth.render_scenario('obstacles', frames=90, seed=0, noise_sigma=0)
+    assert len(r.boxes) >= 3
+    for b in r.boxes:
+        d = np.hypot(traj.x - b.x, traj.y - b.y)
+        assert d.min() > math.hypot(b.half_x, b.half_y) + 1.0
+    plain = synth.Renderer(r.camera, r.mounting, r.texture, noise_sigma=0, seed=0)
+    diffs = [np.any(r.render(traj.x[k], traj.y[k], traj.yaw[k], k)
+                    != plain.render(traj.x[k], traj.y[k], traj.yaw[k], k))
+             for k in range(0, 90, 15)]
+    assert any(diffs)
+
+
+def test_compressed_and_params(tmp_path):
+    params = tmp_path / 'p.yaml'
+    rc = synth.main([str(tmp_path / 'c'), '--compressed', '--frames', '3', '--width', '160',
+                     '--height', '120', '--scenario', 'tight', '--quiet',
+                     '--params-out', str(params), '--camera-pitch', '0.1'])
+    assert rc == 0
+    msgs = read_all(tmp_path / 'c')
+    assert set(msgs) == {synth.COMPRESSED_TOPIC, synth.INFO_TOPIC, synth.ODOM_TOPIC}
+    m = msgs[synth.COMPRESSED_TOPIC][0][2]
+    assert m.format == 'mono8; jpeg compressed mono8'
+    import cv2
+    assert cv2.imdecode(m.data, cv2.IMREAD_GRAYSCALE).shape == (120, 160)
+    import yaml
+    p = yaml.safe_load(params.read_text())['planar_vo']['ros__parameters']
+    assert p['camera_pitch'] == 0.1 and p['camera_height'] == 1.25 and p['camera_x'] == 1.2
+
+
+@pytest.mark.parametrize('args', [
+    ['EXISTING'],
+    ['NEW', '--scenario', 'nope'],
+    ['NEW', '--frames', '0'],
+    ['NEW', '--frames', 'abc'],
+    ['NEW', '--rate', '-1'],
+    ['/nonexistent/dir/bag'],
+])
+def test_cli_errors_in_process(tmp_path, args, capsys):
+    args = [str(tmp_path) if a == 'EXISTING' else str(tmp_path / 'n') if a == 'NEW' else a
+            for a in args]
+    with pytest.raises(SystemExit) as exc:
+        synth.main(args)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith('planar_vo_synth: error:')
+
+
+def test_cli_subprocess_error_and_help(tmp_path):
+    p = subprocess.run([sys.executable, '-m', 'planar_vo.synth', str(tmp_path)],
+                       capture_output=True, text=True)
+    assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1
+    assert 'Traceback' not in p.stderr
+    h = subprocess.run([sys.executable, '-m', 'planar_vo.synth', '--help'],
+                       capture_output=True, text=True)
+    assert h.returncode == 0
+    for opt in ('--scenario', '--frames', '--seed', '--compressed', '--params-out',
+                '--camera-pitch', '--rate', '--width'):
+        assert opt in h.stdout
+
+
+def test_bag_errors(tmp_path):
+    with pytest.raises(BagError):
+        open_reader(tmp_path / 'missing')
+    with pytest.raises(BagError):
+        open_reader(tmp_path)
+    (tmp_path / 'x.mcap').write_bytes(b'not an mcap file at all')
+    with pytest.raises(BagError):
+        open_reader(tmp_path / 'x.mcap')
