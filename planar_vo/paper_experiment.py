@@ -421,9 +421,9 @@ def _trials(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f'--trials must be an integer, got {text!r}') from None
+        raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
     if value < 1:
-        raise argparse.ArgumentTypeError(f'--trials must be at least 1, got {value}')
+        raise argparse.ArgumentTypeError(f'must be at least 1, got {value}')
     return value
 
 
@@ -431,9 +431,9 @@ def _seed(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f'--seed must be an integer, got {text!r}') from None
+        raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
     if value < 0:
-        raise argparse.ArgumentTypeError(f'--seed must be non-negative, got {value}')
+        raise argparse.ArgumentTypeError(f'must be non-negative, got {value}')
     return value
 
 
@@ -442,25 +442,31 @@ def _sigmas(text: str) -> list[float]:
         values = [float(part) for part in text.split(',')]
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f'--sigmas must be comma-separated numbers like 0,0.5,1, got {text!r}') from None
+            f'must be comma-separated numbers like 0,0.5,1, got {text!r}') from None
     if not all(math.isfinite(v) and v >= 0 for v in values):
         raise argparse.ArgumentTypeError(
-            f'--sigmas must be finite and non-negative (pixels), got {text!r}')
+            f'must be finite and non-negative (pixels), got {text!r}')
     return values
 
 
 def _check_plot_path(path: str) -> str | None:
     """Why ``path`` cannot take the plot, or None; checked before the long run."""
+    ext = os.path.splitext(path)[1].lower().lstrip('.')
+    if ext != 'png':
+        return f'--plot {path!r} must end in .png'
     if os.path.isdir(path):
         return f'--plot {path!r} is a directory; give a file name such as out/fig5.png'
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(parent):
         return f'--plot {path!r}: directory {parent!r} does not exist'
-    if not os.access(parent, os.W_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
-        return f'--plot {path!r} is not writable'
-    ext = os.path.splitext(path)[1].lower().lstrip('.')
-    if ext != 'png':
-        return f'--plot {path!r} must end in .png'
+    existed = os.path.exists(path)
+    try:  # really try: access() says yes to root even where the file system says no
+        with open(path, 'ab'):
+            pass
+        if not existed:
+            os.remove(path)
+    except OSError as exc:
+        return f'--plot {path!r} is not writable: {exc.strerror}'
     try:
         import matplotlib  # noqa: F401
     except ImportError:

@@ -112,6 +112,8 @@ def test_plot_writes_a_png(tmp_path, capsys):
     ['--seed', '-3'],
     ['--plot', '/nonexistent-dir/fig.png'],
     ['--plot', '.'],
+    ['--plot', 'fig.jpg'],
+    ['--plot', '/sys/fig.png'],  # unwritable even for root
     ['--bogus'],
 ])
 def test_bad_arguments_exit_2_with_one_line(args, capsys):
