@@ -26,10 +26,6 @@ import functools
 from collections.abc import Iterable
 from pathlib import Path
 
-try:
-    from compression import zstd as _zstd  # Python >= 3.14
-except ImportError:  # pragma: no cover
-    from backports import zstd as _zstd  # rosbags depends on it before 3.14
 from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import Connection
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
@@ -56,13 +52,10 @@ class BagWriter:
         path: Output bag directory; must not exist yet.
         compress: zstd-compress the MCAP chunks (storage-level compression).
         version: rosbag2 metadata version (9 for Jazzy, 8 for Humble).
-        zstd_level: zstd level of the chunks (None: zstd's default, 3; 19 is ~10 % smaller
-            on images and ~10x slower).
 
     """
 
-    def __init__(self, path, *, compress: bool = True, version: int = 9,
-                 zstd_level: int | None = None) -> None:
+    def __init__(self, path, *, compress: bool = True, version: int = 9) -> None:
         self.path = Path(path)
         if self.path.exists():
             raise BagError(f'output bag {self.path} already exists')
@@ -71,7 +64,6 @@ class BagWriter:
         self._writer = Writer(self.path, version=version, storage_plugin=StoragePlugin.MCAP)
         if compress:
             self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-        self._zstd_level = zstd_level if compress else None
         self._connections: dict[str, Connection] = {}
         self._open = False
 
@@ -91,10 +83,6 @@ class BagWriter:
         except (WriterError, OSError) as err:
             raise BagError(f'cannot create bag {self.path}: {err}') from None
         self._open = True
-        storage = getattr(self._writer, 'storage', None)
-        if self._zstd_level is not None and getattr(storage, 'compression', '') == 'zstd':
-            level = self._zstd_level
-            storage.compressor = lambda data: _zstd.compress(data, level=level)
 
     def close(self) -> None:
         """Finish the bag: write the MCAP summary and metadata.yaml."""

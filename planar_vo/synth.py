@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 
 from planar_vo.camera import Mounting
+from planar_vo.progress import Progress
 
 WHEELBASE = 2.7
 EPOCH_NS = 1_700_000_000 * 1_000_000_000
@@ -659,18 +660,6 @@ class SynthResult:
     seconds: float = 0.0
 
 
-def _progress(done: int, total: int) -> None:
-    tty = sys.stderr.isatty()
-    step = max(1, total // (50 if tty else 4))
-    if done % step and done != total:
-        return
-    line = f'planar_vo_synth: frame {done}/{total}'
-    if tty:
-        print('\r' + line, end='\n' if done == total else '', file=sys.stderr, flush=True)
-    else:
-        print(line, file=sys.stderr, flush=True)
-
-
 def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0, *,
                     rate: float = 30.0, camera: SynthCamera | None = None,
                     mounting: Mounting | None = None, noise_sigma: float = 1.5,
@@ -695,8 +684,7 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                  mounting: Mounting | None = None, compressed: bool = False,
                  jpeg_quality: int = 90, noise_sigma: float = 1.5, max_range: float = 60.0,
                  obstacles: bool = True, storage_compression: bool = True,
-                 zstd_level: int | None = None, params_out=None,
-                 progress: bool = False) -> SynthResult:
+                 params_out=None, progress: bool = False) -> SynthResult:
     """Render a scenario and write the rosbag2 bag (MCAP, zstd chunks) at ``out_path``."""
     from planar_vo.bag import BagWriter, typestore
 
@@ -709,7 +697,8 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
     ts = typestore()
     img_topic = COMPRESSED_TOPIC if compressed else IMAGE_TOPIC
     img_type = 'sensor_msgs/msg/CompressedImage' if compressed else 'sensor_msgs/msg/Image'
-    with BagWriter(out_path, compress=storage_compression, zstd_level=zstd_level) as bag:
+    bar = Progress(frames, 'planar_vo_synth', enabled=progress)
+    with BagWriter(out_path, compress=storage_compression) as bag:
         bag.add_topic(img_topic, img_type)
         bag.add_topic(INFO_TOPIC, 'sensor_msgs/msg/CameraInfo')
         bag.add_topic(ODOM_TOPIC, 'nav_msgs/msg/Odometry')
@@ -723,8 +712,8 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                       camera_info_msg(ts, camera, ns))
             bag.write(img_topic, img_type, ns, msg)
             bag.write(ODOM_TOPIC, 'nav_msgs/msg/Odometry', ns, odometry_msg(ts, traj, k, ns))
-            if progress:
-                _progress(k + 1, frames)
+            bar.update(k + 1)
+    bar.close()
     if params_out is not None:
         Path(params_out).write_text(params_yaml(mounting))
     return SynthResult(Path(out_path), scenario, frames, rate, seed, camera, mounting, traj,
@@ -816,8 +805,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help='JPEG quality with --compressed (default 90)')
     p.add_argument('--no-storage-compression', action='store_true',
                    help='do not zstd-compress the MCAP chunks')
-    p.add_argument('--zstd-level', type=int, choices=range(1, 23), metavar='1..22',
-                   help='zstd level of the MCAP chunks (default 3; 19 is ~10%% smaller, slower)')
     p.add_argument('--params-out', metavar='YAML',
                    help='also write a planar_vo params file with this mounting')
     p.add_argument('--quiet', action='store_true', help='no progress output')
@@ -855,7 +842,6 @@ def main(argv=None) -> int:
                            jpeg_quality=args.jpeg_quality, noise_sigma=args.noise,
                            max_range=args.max_range, obstacles=not args.no_obstacles,
                            storage_compression=not args.no_storage_compression,
-                           zstd_level=args.zstd_level,
                            params_out=args.params_out, progress=not args.quiet)
     except (BagError, OSError, ValueError) as err:
         print(f'planar_vo_synth: error: {err}', file=sys.stderr)
