@@ -105,12 +105,17 @@ class Tracker:
         free = mask.copy()
         for x, y in self.points.astype(int):
             cv2.circle(free, (int(x), int(y)), int(self.min_distance), 0, -1)
+        # Detect only inside the mask's bounding box: the sky is most of a level camera's view.
+        x0, y0, w, h = cv2.boundingRect(mask)
+        if w == 0 or h == 0:
+            return 0
         corners = cv2.goodFeaturesToTrack(
-            self._image, maxCorners=3 * deficit, qualityLevel=self.quality_level,
-            minDistance=self.min_distance, mask=free, blockSize=5)
+            self._image[y0:y0 + h, x0:x0 + w], maxCorners=3 * deficit,
+            qualityLevel=self.quality_level, minDistance=self.min_distance,
+            mask=free[y0:y0 + h, x0:x0 + w], blockSize=5)
         if corners is None:
             return 0
-        corners = corners.reshape(-1, 2)
+        corners = corners.reshape(-1, 2) + np.float32([x0, y0])
         new = self._spread(corners, mask.shape, deficit)
         if len(new):
             cv2.cornerSubPix(self._image, new.reshape(-1, 1, 2), (3, 3), (-1, -1),
