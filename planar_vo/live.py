@@ -35,7 +35,7 @@ class LiveError(RuntimeError):
 def local_dds_env() -> dict[str, str]:
     """Return the environment with DDS kept on loopback and a domain id of its own."""
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    os.environ.pop('ROS_LOCALHOST_ONLY', None)
+    os.environ.pop('ROS_LOCALHOST_ONLY', None)  # deprecated in Jazzy; do not let it interfere
     os.environ.setdefault('ROS_DOMAIN_ID', str(101 + os.getpid() % 100))
     return dict(os.environ)
 

@@ -35,7 +35,7 @@ def ros_env():
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                       ROS_DOMAIN_ID=str(1 + os.getpid() % 100), ROS_PYTHON_CHECK_FIELDS='1',
                       PYTHONUNBUFFERED='1')
-    os.environ.pop('ROS_LOCALHOST_ONLY', None)
+    os.environ.pop('ROS_LOCALHOST_ONLY', None)  # deprecated in Jazzy; do not let it interfere
     yield dict(os.environ)
     os.environ.clear()
     os.environ.update(saved)
