@@ -22,10 +22,9 @@ import numpy as np
 
 from planar_vo.bag import BagError, open_reader
 from planar_vo.messages import planar_pose, stamp_to_seconds
+from planar_vo.replay import IMAGE_TYPES
 
 __all__ = ['BagStream', 'LiveSession', 'LiveError', 'local_dds_env']
-
-IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
 
 
 class LiveError(RuntimeError):

@@ -69,7 +69,6 @@ class ReplayResult:
     counters: dict[str, int]
     warnings: list[str]
     frames: int
-    timing_ms: dict[str, float]
 
 
 def _pick_topic(connections: list, types: tuple[str, ...], wanted: str | None, what: str,
@@ -155,7 +154,7 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
                 writer.close()
     if vo is None:
         raise ReplayError(f'no usable CameraInfo on {info_conn.topic}')
-    return ReplayResult(estimate, truth, dict(vo.counters), warnings, frames, {})
+    return ReplayResult(estimate, truth, dict(vo.counters), warnings, frames)
 
 
 def _process(vo: VisualOdometry, msg: Any, estimate: Trajectory, writer: BagWriter | None,
