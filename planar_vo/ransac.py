@@ -162,39 +162,34 @@ def transfer_errors(
     return errors.reshape(motions.shape[:-1] + (len(p1),))
 
 
-def _residuals_and_jacobian(
-    motion: np.ndarray, p1: np.ndarray, m2: np.ndarray, model: TransferModel
-) -> tuple[np.ndarray, np.ndarray]:
-    """Residuals (2N,) in normalized units (all u, then all v) and the Jacobian (3, 2N).
+_QUARTER_TURN = np.array([[0.0, 1.0], [-1.0, 0.0]])  # dq/dyaw = _QUARTER_TURN @ q
 
-    Translation enters ``q = R^T (p1 - t)`` as a constant ``-R^T``, so its columns of
-    ``dP = A dq`` are constant 3-vectors; only yaw's column varies per point.
+
+def _residuals_and_jacobian(
+    motion: np.ndarray, p1_t: np.ndarray, m2_t: np.ndarray, model: TransferModel
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Residuals (2, N), Jacobian (3, 2, N) of the transfer, and where it is defined (N,).
+
+    Inputs are transposed, (2, N). With ``q = R^T (p1 - t)`` the optical point is
+    ``P = A q + b``: translation enters through the constant ``-A R^T`` and yaw through
+    ``A Q R^T (p1 - t)``, so everything is a handful of whole-array operations (this runs
+    every Gauss-Newton step of every frame). Behind the camera the Jacobian is zero.
     """
     x, y, yaw = motion
     c, s = np.cos(yaw), np.sin(yaw)
-    (a00, a01), (a10, a11), (a20, a21) = model.A
-    b0, b1, b2 = model.b
-    n = len(p1)
-    dx, dy = p1[:, 0] - x, p1[:, 1] - y
-    qx, qy = c * dx + s * dy, c * dy - s * dx
-    z = a20 * qx + a21 * qy + b2
-    iz = 1.0 / np.where(z > 1e-9, z, np.nan)  # behind the camera: NaN residuals
-    r = np.empty(2 * n)
-    u, v = r[:n], r[n:]
-    np.multiply(a00 * qx + a01 * qy + b0, iz, out=u)
-    np.multiply(a10 * qx + a11 * qy + b1, iz, out=v)
-    dz_yaw = a20 * qy - a21 * qx
-    J = np.empty((3, 2 * n))
-    for k, (d0, d1, d2) in enumerate(((a01 * s - a00 * c, a11 * s - a10 * c, a21 * s - a20 * c),
-                                      (-a00 * s - a01 * c, -a10 * s - a11 * c,
-                                       -a20 * s - a21 * c))):
-        J[k, :n] = (d0 - u * d2) * iz
-        J[k, n:] = (d1 - v * d2) * iz
-    J[2, :n] = (a00 * qy - a01 * qx - u * dz_yaw) * iz
-    J[2, n:] = (a10 * qy - a11 * qx - v * dz_yaw) * iz
-    u -= m2[:, 0]
-    v -= m2[:, 1]
-    return r, J
+    a_rt = model.A @ np.array([[c, s], [-s, c]])  # (3, 2)
+    d = p1_t - np.array([[x], [y]])
+    P = a_rt @ d
+    P += model.b[:, None]
+    front = P[2] > 1e-9
+    iz = np.divide(1.0, P[2], out=np.zeros_like(P[2]), where=front)
+    m = P[:2] * iz
+    d_yaw = (a_rt @ _QUARTER_TURN) @ d  # dP/dyaw, (3, N)
+    J = np.empty((3, 2, len(iz)))
+    J[:2] = -a_rt[:2].T[:, :, None] + a_rt[2][:, None, None] * m  # dP/d(x, y) = -A R^T
+    J[2] = d_yaw[:2] - d_yaw[2] * m
+    J *= iz
+    return m - m2_t, J, front
 
 
 def refine_motion(
@@ -217,42 +212,47 @@ def refine_motion(
         (N,) bool). The covariance is ``sigma^2 (J^T J)^-1``, sigma from the residuals.
     """
     motion = np.asarray(motion, dtype=float).copy()
-    n = len(p1)
+    p1_t, m2_t = np.ascontiguousarray(p1.T, dtype=float), np.ascontiguousarray(m2.T, dtype=float)
     if circular:  # state (rho, yaw): signed travel along the chord, and yaw
         rho, yaw = motion[0] * np.cos(motion[2] / 2) + motion[1] * np.sin(motion[2] / 2), motion[2]
         motion = circular_motion(yaw, rho)
     threshold2 = np.inf if threshold_px is None else (threshold_px / model.focal_px) ** 2
-    inliers = np.ones(n, bool)
+    inliers, predicted_drop = np.ones(len(p1), bool), 0.0
     for i in range(iterations + 1):
-        r, J = _residuals_and_jacobian(motion, p1, m2, model)
-        selected = r[:n] ** 2 + r[n:] ** 2 < threshold2  # False for NaN: behind the camera
+        r, J, front = _residuals_and_jacobian(motion, p1_t, m2_t, model)
+        squared = r[0] * r[0] + r[1] * r[1]
+        selected = front & (squared < threshold2)
         changed = not np.array_equal(selected, inliers)
         inliers = selected
-        if np.count_nonzero(inliers) < 3:
-            raise PoseEstimationError(
-                f'only {np.count_nonzero(inliers)} correspondences fit the motion')
-        if not inliers.all():
-            both = np.concatenate([inliers, inliers])
-            r, J = r[both], J[:, both]
+        count = np.count_nonzero(inliers)
+        if count < 3:
+            raise PoseEstimationError(f'only {count} correspondences fit the motion')
+        J_in = (J * inliers).reshape(3, -1)
+        JJt, g = J_in @ J.reshape(3, -1).T, J_in @ r.reshape(-1)
         if circular:
-            J = _circular_jacobian(rho, yaw).T @ J
-        JJt = J @ J.T
+            G = _circular_jacobian(rho, yaw)
+            JJt, g = G.T @ JJt @ G, G.T @ g
         if i == iterations:
             break
-        step = -np.linalg.solve(JJt + 1e-15 * np.eye(len(J)), J @ r)
-        if np.max(np.abs(step)) < 1e-7 and not changed:  # 0.1 micrometre or microradian
-            break
+        step = -np.linalg.solve(JJt + 1e-15 * np.eye(len(g)), g)
         if circular:
             rho, yaw = rho + step[0], yaw + step[1]
             motion = circular_motion(yaw, rho)
         else:
             motion = motion + step
-    sigma2 = max(float(r @ r) / max(len(r) - len(J), 1), 1e-14)
-    covariance = np.linalg.inv(JJt + 1e-15 * np.eye(len(J))) * sigma2
+        # Converged: Gauss-Newton converges quadratically here (small residuals), so after a
+        # step under 10 micrometres / microradians the next would be far below the noise.
+        # The Jacobian from just before this step serves; the residual drops by the
+        # linearised model's predicted amount, g . step.
+        if np.max(np.abs(step)) < 1e-5 and not changed:
+            predicted_drop = float(g @ step)
+            break
+    sum_squared = max(float(squared[inliers].sum()) + predicted_drop, 0.0)
+    sigma2 = max(sum_squared / max(2 * count - len(g), 1), 1e-14)
+    covariance = np.linalg.inv(JJt + 1e-15 * np.eye(len(g))) * sigma2
     if circular:
-        G = _circular_jacobian(rho, yaw)
         covariance = G @ covariance @ G.T
-    rms = model.focal_px * float(np.sqrt(2.0 * r @ r / max(len(r), 1)))
+    rms = model.focal_px * float(np.sqrt(sum_squared / count))
     return motion, covariance, rms, inliers
 
 
