@@ -162,7 +162,7 @@ def transfer_errors(
     return errors.reshape(motions.shape[:-1] + (len(p1),))
 
 
-_RESELECTIONS = 3  # Gauss-Newton steps that choose the inliers again
+_RESELECTIONS = 2  # Gauss-Newton steps that choose the inliers again
 _QUARTER_TURN = np.array([[0.0, 1.0], [-1.0, 0.0]])  # dq/dyaw = _QUARTER_TURN @ q
 
 
