@@ -20,6 +20,7 @@ import numpy as np
 
 from planar_vo.bag import BagError, open_reader, typestore
 from planar_vo.baselines import essential_motion, homography_motion
+from planar_vo.camera import rays_through
 from planar_vo.config import ConfigError, defaults, load_params_file
 from planar_vo.messages import (
     ImageError,
@@ -208,9 +209,8 @@ def _ground_pairs(vo: VisualOdometry, ref_px: np.ndarray,
     if len(ref_px) < 8:
         return None
     m1, m2 = vo.camera.normalize(ref_px), vo.camera.normalize(cur_px)
-    ones = np.ones((len(m1), 1))
-    p1, v1 = vo.mounting.ground_points(np.hstack([m1, ones]), vo.horizon_margin)
-    p2, v2 = vo.mounting.ground_points(np.hstack([m2, ones]), vo.horizon_margin)
+    p1, v1 = vo.mounting.ground_points(rays_through(m1), vo.horizon_margin)
+    p2, v2 = vo.mounting.ground_points(rays_through(m2), vo.horizon_margin)
     ok = v1 & v2
     if np.count_nonzero(ok) < 8:
         return None

@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-__all__ = ['CameraModel', 'CameraModelError', 'Mounting', 'level_to_base', 'BODY_FROM_OPTICAL']
+__all__ = ['CameraModel', 'CameraModelError', 'Mounting', 'level_to_base', 'rays_through',
+           'BODY_FROM_OPTICAL']
 
 # Columns: optical x = body -y, optical y = body -z, optical z = body x (REP-103 optical frame).
 BODY_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -25,6 +26,11 @@ DISTORTION_MODELS = {'plumb_bob': (4, 5, 8, 12, 14), 'rational_polynomial': (8, 
 # solver is Newton's method on the angle, so its tolerance, in radians, costs nothing.
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-6)
 _FISHEYE_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+
+
+def rays_through(normalized: np.ndarray) -> np.ndarray:
+    """Unnormalized rays ``[x, y, 1]`` (N, 3) through normalized image points (N, 2)."""
+    return np.concatenate([normalized, np.ones((len(normalized), 1))], axis=1)
 
 
 class CameraModelError(ValueError):
@@ -133,8 +139,7 @@ class CameraModel:
 
     def rays(self, pixels: np.ndarray) -> np.ndarray:
         """Unnormalized rays ``[x, y, 1]`` (N, 3) in the optical frame."""
-        n = self.normalize(pixels)
-        return np.concatenate([n, np.ones((len(n), 1))], axis=1)
+        return rays_through(self.normalize(pixels))
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from planar_vo.baselines import homography_motion
-from planar_vo.camera import CameraModel, Mounting
+from planar_vo.camera import CameraModel, Mounting, rays_through
 from planar_vo.ransac import (
     PoseEstimationError,
     RansacResult,
@@ -163,6 +163,7 @@ class VisualOdometry:
 
     def _update_geometry(self) -> None:
         self._model = TransferModel.from_camera(self.mounting, self.camera)
+        self.tracker.set_normalize(self.camera.normalize)
         self._mask = None
         if self.camera.width > 0 and self.camera.height > 0:
             self._mask = ground_mask(self.camera, self.mounting, self.horizon_margin)
@@ -214,7 +215,7 @@ class VisualOdometry:
         if not len(points) or not np.any(self.twist) or self.twist_covariance[0, 0] >= (
                 _LOST_TWIST_VARIANCE):
             return None
-        ground, valid = self.mounting.ground_points(self.camera.rays(points))
+        ground, valid = self.mounting.ground_points(rays_through(self.tracker.points_normalized))
         predicted = points.astype(np.float64)
         moved = self._model.transfer(self.twist * dt, ground[valid])
         ok = np.all(np.isfinite(moved), axis=1)
@@ -223,12 +224,11 @@ class VisualOdometry:
         return predicted
 
     def _estimate(self, stamp: float, t0: float) -> FrameResult:
-        idx, ref_px, cur_px = self.tracker.correspondences()
-        rays1 = self.camera.rays(ref_px)
-        m2 = self.camera.normalize(cur_px)
-        p1, v1 = self.mounting.ground_points(rays1, self.horizon_margin)
-        p2, v2 = self.mounting.ground_points(
-            np.concatenate([m2, np.ones((len(m2), 1))], axis=1), self.horizon_margin)
+        idx, _, cur_px = self.tracker.correspondences()
+        m2 = self.tracker.points_normalized[idx]
+        p1, v1 = self.mounting.ground_points(
+            rays_through(self.tracker.reference_normalized[idx]), self.horizon_margin)
+        p2, v2 = self.mounting.ground_points(rays_through(m2), self.horizon_margin)
         ok = v1 & v2
         n = int(np.count_nonzero(ok))
         t_pose = time.perf_counter()
@@ -351,3 +351,4 @@ def mounting_from_params(params: dict[str, Any]) -> Mounting:
 
 def _with_size(camera: CameraModel, shape: tuple[int, int]) -> CameraModel:
     return CameraModel(camera.K, camera.D, camera.distortion_model, shape[1], shape[0])
+

@@ -2,10 +2,14 @@
 
 Every track remembers where it was in the *reference* frame (the last frame whose motion
 was estimated), so a frame that cannot be estimated does not lose motion: the next frame
-is matched against the same reference while its tracks survive.
+is matched against the same reference while its tracks survive. Tracks also carry their
+undistorted (normalized) coordinates, so each position is undistorted once, when it is
+first measured, not again every time it is used.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import cv2
 import numpy as np
@@ -26,6 +30,7 @@ class Tracker:
         levels: int = 3,
         fb_threshold: float = 0.5,
         grid: tuple[int, int] = (4, 8),
+        normalize: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> None:
         self.max_features = max_features
         self.quality_level = quality_level
@@ -38,12 +43,21 @@ class Tracker:
             'criteria': (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01),
         }
         self._image: np.ndarray | None = None
+        self._normalize = normalize or _as_float64
         self.reset()
 
     def reset(self) -> None:
         """Forget every track; the last image stays, so new tracks can start in it."""
         self.points = np.zeros((0, 2), np.float32)  # (N, 2) in the current image
         self.reference = np.zeros((0, 2), np.float32)  # (N, 2) in the reference, NaN if new
+        self.points_normalized = np.zeros((0, 2))  # the same, undistorted
+        self.reference_normalized = np.zeros((0, 2))
+
+    def set_normalize(self, normalize: Callable[[np.ndarray], np.ndarray]) -> None:
+        """Undistort with ``normalize`` (pixels (N, 2) to normalized (N, 2)) from now on."""
+        self._normalize = normalize
+        self.points_normalized = normalize(self.points)
+        self.reference_normalized = normalize(self.reference)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -73,6 +87,8 @@ class Tracker:
                     & (cur[:, 0] >= 0) & (cur[:, 1] >= 0) & (cur[:, 0] <= w - 1)
                     & (cur[:, 1] <= h - 1))
             self.points, self.reference = cur[keep], self.reference[keep]
+            self.reference_normalized = self.reference_normalized[keep]
+            self.points_normalized = self._normalize(self.points)
         self._image = gray
 
     def correspondences(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -83,12 +99,15 @@ class Tracker:
     def set_reference(self) -> None:
         """The current frame becomes the reference of every track."""
         self.reference = self.points.copy()
+        self.reference_normalized = self.points_normalized.copy()
 
     def drop(self, indices: np.ndarray) -> None:
         """Remove tracks (e.g. outliers: obstacles, mismatches) so the grid refills."""
         keep = np.ones(len(self.points), bool)
         keep[indices] = False
         self.points, self.reference = self.points[keep], self.reference[keep]
+        self.points_normalized = self.points_normalized[keep]
+        self.reference_normalized = self.reference_normalized[keep]
 
     def replenish(self, mask: np.ndarray, *, is_reference: bool) -> int:
         """Detect new corners in under-populated grid cells of ``mask`` (uint8, 255 = use).
@@ -120,9 +139,15 @@ class Tracker:
         if len(new):
             cv2.cornerSubPix(self._image, new.reshape(-1, 1, 2), (3, 3), (-1, -1),
                              (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 10, 0.03))
-        ref = new.copy() if is_reference else np.full_like(new, np.nan)
+        normalized = self._normalize(new)
         self.points = np.concatenate([self.points, new])
+        self.points_normalized = np.concatenate([self.points_normalized, normalized])
+        if is_reference:
+            ref, ref_normalized = new.copy(), normalized
+        else:
+            ref, ref_normalized = np.full_like(new, np.nan), np.full_like(normalized, np.nan)
         self.reference = np.concatenate([self.reference, ref])
+        self.reference_normalized = np.concatenate([self.reference_normalized, ref_normalized])
         return len(new)
 
     def _spread(self, corners: np.ndarray, shape: tuple[int, int], deficit: int) -> np.ndarray:
@@ -145,3 +170,8 @@ class Tracker:
                 if len(taken) == deficit:
                     break
         return corners[taken].astype(np.float32)
+
+
+def _as_float64(pixels: np.ndarray) -> np.ndarray:
+    """No camera model: normalized coordinates are the pixels themselves."""
+    return np.asarray(pixels, dtype=np.float64).reshape(-1, 2)

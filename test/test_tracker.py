@@ -59,3 +59,35 @@ def test_new_tracks_are_not_matched_before_a_reference():
     assert len(tracker.correspondences()[0]) == len(tracker)
     tracker.drop(np.arange(10))
     assert len(tracker) == len(tracker.correspondences()[0])
+
+
+def test_normalized_coordinates_follow_every_track_operation():
+    """Each position is undistorted once, and stays with its track through every change."""
+    calls = []
+
+    def normalize(pixels):
+        calls.append(len(pixels))
+        return (np.asarray(pixels, np.float64) - 320.0) / 500.0
+
+    def check(tracker):
+        np.testing.assert_allclose(tracker.points_normalized, normalize(tracker.points))
+        np.testing.assert_allclose(tracker.reference_normalized, normalize(tracker.reference))
+
+    img = texture(3)
+    mask = np.full_like(img, 255)
+    tracker = Tracker(max_features=120, normalize=normalize)
+    tracker.track(img)
+    tracker.replenish(mask, is_reference=False)
+    check(tracker)
+    assert np.isnan(tracker.reference_normalized).all()  # no reference yet
+    tracker.set_reference()
+    tracker.track(shifted(img, 2.0, 1.0))
+    check(tracker)
+    tracker.drop(np.arange(0, len(tracker), 3))
+    check(tracker)
+    calls.clear()
+    added = tracker.replenish(mask, is_reference=True)
+    assert added > 0 and calls == [added]  # only the new corners are undistorted
+    check(tracker)
+    tracker.set_normalize(lambda pixels: np.asarray(pixels, np.float64) / 100.0)
+    np.testing.assert_allclose(tracker.points_normalized, tracker.points / 100.0)
