@@ -64,9 +64,17 @@ def params_yaml(mounting: Mounting) -> str:
     return '\n'.join(lines) + '\n'
 
 
+# Lens models the renderer can simulate, as CameraInfo names them, with default coefficients.
+DISTORTION_DEFAULTS = {
+    'plumb_bob': (-0.25, 0.07, 0.0005, -0.0005, 0.0),
+    'rational_polynomial': (-0.3, 0.09, 0.0005, -0.0005, -0.01, 0.01, 0.002, 0.0),
+    'equidistant': (-0.03, 0.004, -0.001, 0.0002),
+}
+
+
 @dataclass(frozen=True)
 class SynthCamera:
-    """Pinhole + plumb_bob camera (OpenCV conventions)."""
+    """Camera with lens distortion, OpenCV conventions (``equidistant`` is cv2.fisheye)."""
 
     width: int = 640
     height: int = 480
@@ -74,7 +82,14 @@ class SynthCamera:
     fy: float = 460.0
     cx: float = 320.0
     cy: float = 240.0
-    dist: tuple = (-0.25, 0.07, 0.0005, -0.0005, 0.0)
+    dist: tuple = DISTORTION_DEFAULTS['plumb_bob']
+    distortion_model: str = 'plumb_bob'
+
+    def __post_init__(self) -> None:
+        expected = len(DISTORTION_DEFAULTS[self.distortion_model])
+        if len(self.dist) != expected:
+            raise ValueError(f'{self.distortion_model} takes {expected} coefficients, '
+                             f'not {len(self.dist)}')
 
     @classmethod
     def scaled(cls, width: int, height: int, **kw) -> SynthCamera:
@@ -83,6 +98,8 @@ class SynthCamera:
         base = dict(width=width, height=height, fx=460.0 * s, fy=460.0 * s,
                     cx=width / 2.0, cy=height / 2.0)
         base.update({k: v for k, v in kw.items() if v is not None})
+        if 'dist' not in base:
+            base['dist'] = DISTORTION_DEFAULTS[base.get('distortion_model', 'plumb_bob')]
         return cls(**base)
 
     def k_matrix(self) -> np.ndarray:
@@ -92,8 +109,12 @@ class SynthCamera:
     def project(self, points_optical: np.ndarray) -> np.ndarray:
         """Project (N, 3) points in the optical frame to distorted pixels (N, 2)."""
         pts = np.asarray(points_optical, np.float64).reshape(-1, 1, 3)
-        px, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), self.k_matrix(),
-                                  np.asarray(self.dist, np.float64))
+        d = np.asarray(self.dist, np.float64)
+        if self.distortion_model == 'equidistant':
+            px, _ = cv2.fisheye.projectPoints(pts, np.zeros((3, 1)), np.zeros((3, 1)),
+                                              self.k_matrix(), d)
+        else:
+            px, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), self.k_matrix(), d)
         return px.reshape(-1, 2)
 
     def rays(self) -> np.ndarray:
@@ -101,12 +122,15 @@ class SynthCamera:
         return _camera_rays(self)
 
 
-def undistort_pixels(pixels: np.ndarray, k: np.ndarray, dist) -> np.ndarray:
+def undistort_pixels(pixels: np.ndarray, k: np.ndarray, dist,
+                     model: str = 'plumb_bob') -> np.ndarray:
     """Undistort (N, 2) pixels to normalised image coordinates with tight convergence."""
     pts = np.asarray(pixels, np.float64).reshape(-1, 1, 2)
     d = np.asarray(dist, np.float64)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-    if hasattr(cv2, 'undistortPointsIter'):  # OpenCV 4.x
+    if model == 'equidistant':
+        out = cv2.fisheye.undistortPoints(pts, k, d, criteria=crit)
+    elif hasattr(cv2, 'undistortPointsIter'):  # OpenCV 4.x
         out = cv2.undistortPointsIter(pts, k, d, None, None, crit)
     else:  # OpenCV 5.x
         out = cv2.undistortPoints(pts, k, d, criteria=crit)
@@ -117,7 +141,8 @@ def undistort_pixels(pixels: np.ndarray, k: np.ndarray, dist) -> np.ndarray:
 def _camera_rays(cam: SynthCamera) -> np.ndarray:
     u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64),
                        np.arange(cam.height, dtype=np.float64))
-    xy = undistort_pixels(np.stack([u.ravel(), v.ravel()], 1), cam.k_matrix(), cam.dist)
+    xy = undistort_pixels(np.stack([u.ravel(), v.ravel()], 1), cam.k_matrix(), cam.dist,
+                          cam.distortion_model)
     rays = np.concatenate([xy, np.ones((xy.shape[0], 1))], 1).reshape(cam.height, cam.width, 3)
     rays.setflags(write=False)
     return rays
@@ -446,9 +471,9 @@ class Renderer:
         cz = self.origin[2]
         if cz <= 0:
             raise ValueError('camera_height must be > 0')
-        with np.errstate(divide='ignore', invalid='ignore'):
+        with np.errstate(divide='ignore', invalid='ignore'):  # sky rays: t = inf, masked below
             t = np.where(d[:, 2] < -1e-9, cz / -d[:, 2], np.inf)
-        gp = self.origin[None, :2] + t[:, None] * d[:, :2]
+            gp = self.origin[None, :2] + t[:, None] * d[:, :2]
         dist = np.hypot(gp[:, 0] - self.origin[0], gp[:, 1] - self.origin[1])
         ground = np.isfinite(t) & (dist < max_range)
         self.t_ground = np.where(ground, t, np.inf)
@@ -596,7 +621,7 @@ def _header(ts, ns: int, frame: str):
 
 
 def camera_info_msg(ts, cam: SynthCamera, ns: int):
-    """sensor_msgs/CameraInfo for ``cam`` (plumb_bob, R = I, P = [K|0])."""
+    """sensor_msgs/CameraInfo for ``cam`` (its distortion model, R = I, P = [K|0])."""
     t = ts.types
     k = cam.k_matrix()
     p = np.zeros((3, 4))
@@ -605,7 +630,7 @@ def camera_info_msg(ts, cam: SynthCamera, ns: int):
                                                   do_rectify=False)
     return t['sensor_msgs/msg/CameraInfo'](
         header=_header(ts, ns, OPTICAL_FRAME), height=cam.height, width=cam.width,
-        distortion_model='plumb_bob', d=np.asarray(cam.dist, np.float64),
+        distortion_model=cam.distortion_model, d=np.asarray(cam.dist, np.float64),
         k=k.ravel(), r=np.eye(3).ravel(), p=p.ravel(), binning_x=0, binning_y=0, roi=roi)
 
 
@@ -781,8 +806,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--fy', type=_positive_float, help='focal length y in px (default = fx)')
     p.add_argument('--cx', type=_finite, help='principal point x (default W/2)')
     p.add_argument('--cy', type=_finite, help='principal point y (default H/2)')
-    p.add_argument('--dist', type=_finite, nargs=5, metavar=('K1', 'K2', 'P1', 'P2', 'K3'),
-                   help='plumb_bob distortion (default -0.25 0.07 0.0005 -0.0005 0)')
+    p.add_argument('--distortion-model', choices=sorted(DISTORTION_DEFAULTS),
+                   default='plumb_bob', help='lens model, as CameraInfo names it '
+                   '(default plumb_bob; equidistant is the OpenCV fisheye model)')
+    p.add_argument('--dist', type=_finite, nargs='+', metavar='D',
+                   help='distortion coefficients in CameraInfo order: 5 for plumb_bob '
+                        '(default -0.25 0.07 0.0005 -0.0005 0), 8 for rational_polynomial, '
+                        '4 for equidistant')
     p.add_argument('--camera-x', type=_finite, default=1.2,
                    help='camera x ahead of the rear axle, m (default 1.2)')
     p.add_argument('--camera-y', type=_finite, default=0.0,
@@ -828,10 +858,15 @@ def main(argv=None) -> int:
         parser.error('--jpeg-quality must be in 1..100')
     if not -1.2 < args.camera_pitch < 1.5 or abs(args.camera_roll) > 0.5:
         parser.error('camera pitch/roll out of range: the camera must see the ground')
+    expected = len(DISTORTION_DEFAULTS[args.distortion_model])
+    if args.dist and len(args.dist) != expected:
+        parser.error(f'--dist: {args.distortion_model} takes {expected} coefficients, '
+                     f'not {len(args.dist)}')
     camera = SynthCamera.scaled(args.width, args.height, fx=args.fx,
                                 fy=args.fy if args.fy is not None else args.fx,
                                 cx=args.cx, cy=args.cy,
-                                dist=tuple(args.dist) if args.dist else None)
+                                dist=tuple(args.dist) if args.dist else None,
+                                distortion_model=args.distortion_model)
     mounting = Mounting(x=args.camera_x, y=args.camera_y, height=args.camera_height,
                         roll=args.camera_roll, pitch=args.camera_pitch, yaw=args.camera_yaw)
     from planar_vo.bag import BagError

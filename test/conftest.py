@@ -41,10 +41,11 @@ def car_camera():
 def synth_camera_model(renderer):
     """The CameraModel a CameraInfo of the synthetic camera would give."""
     cam = renderer.camera
-    return CameraModel(cam.k_matrix(), np.array(cam.dist), 'plumb_bob', cam.width, cam.height)
+    return CameraModel(cam.k_matrix(), np.array(cam.dist), cam.distortion_model, cam.width,
+                       cam.height)
 
 
-def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None):
+def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, camera=None):
     """Render a synthetic scenario and run the odometry core on it (no bag, no ROS).
 
     ``corrupt(k, image, stamp)`` may replace frame k (image, stamp) to inject bad input.
@@ -53,7 +54,7 @@ def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None):
     from planar_vo import config, synth
     from planar_vo.odometry import VisualOdometry
 
-    renderer, traj = synth.render_scenario(scenario, frames, seed)
+    renderer, traj = synth.render_scenario(scenario, frames, seed, camera=camera)
     params = config.validate(overrides or {})
     vo = VisualOdometry.from_params(synth_camera_model(renderer), params)
     results = []

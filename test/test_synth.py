@@ -27,8 +27,8 @@ def read_all(path):
     return out
 
 
-def small_bag(path, **kw):
-    camera = synth.SynthCamera.scaled(320, 240)
+def small_bag(path, camera=None, **kw):
+    camera = camera or synth.SynthCamera.scaled(320, 240)
     return synth.generate_bag(path, 'default', 8, seed=3, rate=15.0, camera=camera, **kw)
 
 
@@ -107,12 +107,24 @@ def test_sky_has_no_texture_and_ground_has():
     (['--scenario', 'moon'], 'unknown scenario'),
     (['--frames', '0'], 'must be > 0'),
     (['--camera-pitch', '2.0'], 'out of range'),
+    (['--distortion-model', 'equidistant', '--dist', '0.1', '0', '0', '0', '0'],
+     'equidistant takes 4 coefficients, not 5'),
 ])
 def test_cli_errors_are_one_line(tmp_path, args, message):
     result = subprocess.run([SYNTH, str(tmp_path / 'x'), *args], capture_output=True, text=True)
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert message in lines[-1] and 'Traceback' not in result.stderr
+
+
+def test_camera_info_carries_the_lens_model(tmp_path):
+    small_bag(tmp_path / 'bag', camera=synth.SynthCamera.scaled(
+        320, 240, fx=150.0, fy=150.0, distortion_model='equidistant'))
+    info = next(m for t, _, _, m in read(tmp_path / 'bag') if t == synth.INFO_TOPIC)
+    assert info.distortion_model == 'equidistant'
+    assert list(info.d) == list(synth.DISTORTION_DEFAULTS['equidistant'])
+    with pytest.raises(ValueError, match='takes 8 coefficients'):
+        synth.SynthCamera(distortion_model='rational_polynomial')
 
 
 def test_cli_refuses_an_existing_output(tmp_path):
@@ -215,8 +227,10 @@ def test_projection_matches_renderer():
     assert abs(cu - u) < 0.3 and abs(cv - v) < 0.3, (cu, cv, u, v)
 
 
-def test_rays_round_trip():
-    cam = synth.SynthCamera()
+@pytest.mark.parametrize('model, fx', [('plumb_bob', 460.0), ('rational_polynomial', 460.0),
+                                       ('equidistant', 300.0)])
+def test_rays_round_trip(model, fx):
+    cam = synth.SynthCamera.scaled(640, 480, fx=fx, fy=fx, distortion_model=model)
     rays = cam.rays()
     px = np.array([[0, 0], [639, 479], [320, 240], [100, 400], [600, 30]])
     back = cam.project(rays[px[:, 1], px[:, 0]])
