@@ -162,7 +162,6 @@ def transfer_errors(
     return errors.reshape(motions.shape[:-1] + (len(p1),))
 
 
-_RESELECTIONS = 2  # Gauss-Newton steps that choose the inliers again
 _QUARTER_TURN = np.array([[0.0, 1.0], [-1.0, 0.0]])  # dq/dyaw = _QUARTER_TURN @ q
 
 
@@ -205,10 +204,11 @@ def refine_motion(
 ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     """Gauss-Newton on the transfer error, in 3 DoF or on the circular 2-DoF manifold.
 
-    With ``threshold_px`` the inliers are chosen again among all the points at the first
-    steps (refinement and inlier selection converge together), then kept: points right at
-    the threshold would otherwise flip in and out for many steps that move the motion by a
-    fraction of its standard deviation. Without ``threshold_px`` every point is used.
+    With ``threshold_px`` the inliers are chosen again among all the points at every step,
+    until the set no longer changes: refinement and inlier selection converge together.
+    (Freezing the set earlier, chosen around a motion not yet converged, biases the result
+    by about one standard deviation when the noise is near the threshold; a test pins it.)
+    Without ``threshold_px`` every point is used.
 
     Returns:
         (motion (3,), covariance (3, 3) of (x, y, yaw), rms inlier error in pixels, inliers
@@ -224,11 +224,9 @@ def refine_motion(
     for i in range(iterations + 1):
         r, J, front = _residuals_and_jacobian(motion, p1_t, m2_t, model)
         squared = r[0] * r[0] + r[1] * r[1]
-        changed = False
-        if i < _RESELECTIONS:
-            selected = front & (squared < threshold2)
-            changed = not np.array_equal(selected, inliers)
-            inliers = selected
+        selected = front & (squared < threshold2)
+        changed = not np.array_equal(selected, inliers)
+        inliers = selected
         count = np.count_nonzero(inliers)
         if count < 3:
             raise PoseEstimationError(f'only {count} correspondences fit the motion')
