@@ -41,9 +41,9 @@ def twist_nees(results, truth):
 # 0.02 %. The bounds leave room for other OpenCV builds: t_rel 0.3 % (the design bar);
 # r_rel 2 deg/100m because these paths are 12-32 m, where a few hundredths of a degree of
 # yaw noise is already most of a degree per 100 m. The twist covariance is measured mean
-# NEES 4.2-6.0 against the ideal 3 (standard deviations ~1.2-1.4x optimistic: tracking
-# errors are not independent from point to point); the bound asks for standard deviations
-# right within a factor of 2.
+# NEES 4.2-6.0 against the ideal 3 (standard deviations ~1.2-1.4x optimistic, as the inlier
+# selection alone makes them in test_ransac); the bound asks for standard deviations right
+# within a factor of 2.
 @pytest.mark.parametrize('scenario', ['straight', 'gentle', 'tight', 'obstacles'])
 def test_scenarios_within_bounds(scenario):
     results, truth = run_scenario(scenario, 150)
