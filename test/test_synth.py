@@ -294,7 +294,7 @@ def test_cli_subprocess_error_and_help(tmp_path):
                        capture_output=True, text=True)
     assert h.returncode == 0
     for opt in ('--scenario', '--frames', '--seed', '--compressed', '--params-out',
-                '--camera-pitch', '--rate', '--width'):
+                '--camera-pitch', '--rate', '--width', '--distortion-model'):
         assert opt in h.stdout
 
 
