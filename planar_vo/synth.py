@@ -10,6 +10,13 @@ Geometry (all exact, the odometry is tested against it):
   camera_height) in base_link, rotated by ``Rz(yaw) @ Ry(pitch) @ Rx(roll)``; positive pitch
   tilts the camera down. The optical frame (x right, y down, z forward) is
   ``R_body_optical = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]`` relative to the body frame.
+  The renderer composes these rotations itself (axis-angle, :func:`rotation_rpy`), never with
+  the pipeline's ``camera.Mounting``, so a wrong composition there cannot cancel out.
+- A sprung body (:class:`Suspension`) may carry the camera: it pitches with the longitudinal
+  acceleration (dive, squat), rolls with the lateral one (lean out of turns), both plus road
+  vibration, and bounces; it rotates about a pivot at the body's centre of mass, so the camera
+  also moves. The ground truth stays base_link on the ground; the true camera pose of every
+  frame is ``Trajectory.camera``.
 - Images are rendered *with* the plumb_bob distortion that CameraInfo describes: every pixel
   (u, v) (OpenCV convention, pixel centres at integer coordinates) is undistorted to a ray.
 
@@ -23,6 +30,7 @@ for a seed.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import math
 import sys
@@ -33,7 +41,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from planar_vo.camera import Mounting
 from planar_vo.progress import Progress
 
 WHEELBASE = 2.7
@@ -49,12 +56,70 @@ OPTICAL_FRAME = 'camera_optical_frame'
 # Set-up: mounting and camera
 # --------------------------------------------------------------------------------------------
 
+# Axes of the optical frame (x right, y down, z forward) in the camera body frame (x forward,
+# y left, z up): the columns of the rotation body <- optical.
+BODY_FROM_OPTICAL = np.column_stack([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+
+
+def axis_rotation(axis: str, angle: float) -> np.ndarray:
+    """Rotation by ``angle`` (rad, right-hand rule) about base axis ``'x'``, ``'y'`` or ``'z'``.
+
+    Built from the axis-angle vector with OpenCV's Rodrigues formula: the renderer's own path,
+    independent of ``planar_vo.camera``.
+    """
+    rvec = np.zeros((3, 1))
+    rvec['xyz'.index(axis), 0] = angle
+    return cv2.Rodrigues(rvec)[0]
+
+
+def rotation_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Attitude ``Rz(yaw) Ry(pitch) Rx(roll)`` (DESIGN.md section 2; positive pitch = down)."""
+    return axis_rotation('z', yaw) @ axis_rotation('y', pitch) @ axis_rotation('x', roll)
+
+
+def rpy_of(rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Inverse of :func:`rotation_rpy` for (..., 3, 3) rotations: (roll, pitch, yaw) arrays."""
+    r = np.asarray(rotation)
+    pitch = np.arcsin(np.clip(-r[..., 2, 0], -1.0, 1.0))
+    return np.arctan2(r[..., 2, 1], r[..., 2, 2]), pitch, np.arctan2(r[..., 1, 0], r[..., 0, 0])
+
+
+@dataclass(frozen=True)
+class CameraMount:
+    """Where the camera sits on the vehicle: camera body frame in base_link (m and rad).
+
+    Plain numbers; anything with these six attributes (e.g. ``planar_vo.camera.Mounting``)
+    converts with :meth:`of`.
+    """
+
+    x: float = 0.0
+    y: float = 0.0
+    height: float = 1.0
+    roll: float = 0.0
+    pitch: float = 0.0
+    yaw: float = 0.0
+
+    @classmethod
+    def of(cls, mounting) -> CameraMount:
+        """The mount with the same six numbers as ``mounting``."""
+        return cls(*(float(getattr(mounting, f.name)) for f in dataclasses.fields(cls)))
+
+    @property
+    def position(self) -> np.ndarray:
+        """Camera position in base_link, (3,)."""
+        return np.array([self.x, self.y, self.height])
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """Rotation base_link <- camera body frame, 3x3."""
+        return rotation_rpy(self.roll, self.pitch, self.yaw)
+
 
 # The realistic set-up: 1.2 m ahead of the rear axle, 1.25 m up, pitched 8 degrees down.
-DEFAULT_MOUNTING = Mounting(x=1.2, y=0.0, height=1.25, pitch=math.radians(8.0))
+DEFAULT_MOUNTING = CameraMount(x=1.2, y=0.0, height=1.25, pitch=math.radians(8.0))
 
 
-def params_yaml(mounting: Mounting) -> str:
+def params_yaml(mounting) -> str:
     """Node/replay parameter file (``planar_vo: ros__parameters:``) for this mounting."""
     values = {'camera_x': mounting.x, 'camera_y': mounting.y,
               'camera_height': mounting.height, 'camera_roll': mounting.roll,
@@ -270,8 +335,44 @@ def make_ground_texture(seed: int = 0, size: int = 4096, texel: float = 0.005) -
 
 
 @dataclass(frozen=True)
+class Suspension:
+    """A sprung body carrying the camera: peak body motion and where the body rotates.
+
+    ``pitch`` and ``roll`` (rad) bound |body pitch| and |body roll|: a share
+    ``inertial_share`` of each follows the acceleration as ``tanh(a / reference)`` (pitch
+    the longitudinal one over ``accel_ref``: dive when braking, squat when accelerating;
+    roll the lateral one ``v * omega`` over ``lateral_ref``: lean out of turns), the rest is
+    road vibration (three sines of 0.6-3 Hz). ``bounce`` (m) bounds the body's height change
+    (road only). A drive of the ``car`` scenario reaches 60-90 % of the bounds. The body
+    rotates about its centre of mass at (``pivot_x``, 0, ``pivot_z``) in base_link.
+    """
+
+    pitch: float = 0.0
+    roll: float = 0.0
+    bounce: float = 0.0
+    pivot_x: float = 1.35
+    pivot_z: float = 0.55
+    inertial_share: float = 0.6
+    accel_ref: float = 1.5  # m/s^2: longitudinal acceleration giving tanh(1) of the share
+    lateral_ref: float = 1.0  # m/s^2: the same for the lateral acceleration
+
+    @classmethod
+    def degrees(cls, pitch: float, roll: float, bounce: float, **kw) -> Suspension:
+        """Suspension with pitch and roll amplitudes in degrees, bounce in metres."""
+        return cls(math.radians(pitch), math.radians(roll), bounce, **kw)
+
+    @property
+    def rigid(self) -> bool:
+        """True when the body does not move on its springs."""
+        return self.pitch == 0.0 and self.roll == 0.0 and self.bounce == 0.0
+
+
+RIGID = Suspension()
+
+
+@dataclass(frozen=True)
 class Scenario:
-    """Driving profile and obstacle density."""
+    """Driving profile, obstacle density, body motion and the scenario's camera attitude."""
 
     name: str
     speed: tuple = (3.0, 8.0)  # m/s range of the speed knots
@@ -280,6 +381,15 @@ class Scenario:
     obstacles_per_100m: float = 6.0
     ahead_fraction: float = 0.2  # fraction of obstacles close to the path (seen ahead)
     description: str = ''
+    suspension: Suspension = RIGID
+    camera_roll: float = 0.0  # rad, the scenario's mounting (else DEFAULT_MOUNTING's)
+    camera_yaw: float = 0.0
+
+    @property
+    def mounting(self) -> CameraMount:
+        """The scenario's camera mounting: the default one with its roll and yaw."""
+        return dataclasses.replace(DEFAULT_MOUNTING, roll=self.camera_roll,
+                                   yaw=self.camera_yaw)
 
 
 SCENARIOS = {
@@ -295,12 +405,103 @@ SCENARIOS = {
                           description='gentle curves among many boxes (30 per 100 m)'),
     'default': Scenario('default', speed=(3.0, 8.0), steer=0.08, obstacles_per_100m=8.0,
                         description='realistic mix: curves, speed changes 3-8 m/s, boxes'),
+    'car': Scenario('car', speed=(3.0, 8.0), steer=0.14, obstacles_per_100m=6.0,
+                    suspension=Suspension.degrees(1.0, 0.6, 0.015),
+                    camera_roll=math.radians(0.5), camera_yaw=math.radians(-0.7),
+                    description='a sprung car body (pitch <= 1 deg, roll <= 0.6 deg, '
+                                'bounce <= 1.5 cm), curves, speed changes 3-8 m/s, camera '
+                                'rolled 0.5 deg and yawed -0.7 deg'),
+    'rough': Scenario('rough', speed=(3.0, 7.0), steer=0.16, obstacles_per_100m=6.0,
+                      suspension=Suspension.degrees(2.0, 1.2, 0.03),
+                      camera_roll=math.radians(-0.6), camera_yaw=math.radians(0.8),
+                      description='rough road, twice the car body motion (pitch <= 2 deg, '
+                                  'roll <= 1.2 deg, bounce <= 3 cm), camera rolled -0.6 deg '
+                                  'and yawed 0.8 deg'),
 }
+
+
+@dataclass(frozen=True)
+class BodyMotion:
+    """The sprung body's attitude and height change at each frame, relative to the ground."""
+
+    roll: np.ndarray  # rad, positive = right side down (lean to the right)
+    pitch: np.ndarray  # rad, positive = nose down (dive)
+    bounce: np.ndarray  # m, positive = body up
+
+
+@dataclass(frozen=True)
+class CameraPoses:
+    """True pose of the camera body frame (x forward, y left, z up) in base_link per frame.
+
+    base_link is on the ground, so these are the camera's attitude and height to the ground.
+    """
+
+    position: np.ndarray  # (N, 3) m; position[:, 2] is the height above the ground
+    rotation: np.ndarray  # (N, 3, 3) base_link <- camera body frame
+
+    @property
+    def height(self) -> np.ndarray:
+        """(N,) camera height above the ground, m."""
+        return self.position[:, 2]
+
+    @property
+    def rpy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(roll, pitch, yaw) (N,) each, rad, in the convention of :func:`rotation_rpy`."""
+        return rpy_of(self.rotation)
+
+    def base_from_optical(self, k: int) -> np.ndarray:
+        """Rotation base_link <- optical frame at frame k, 3x3."""
+        return self.rotation[k] @ BODY_FROM_OPTICAL
+
+
+def road_vibration(rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
+    """Road-excited body motion in [-1, 1]: three sines of 0.6-3 Hz with random phases."""
+    bands, weights = ((0.6, 1.2), (1.2, 2.0), (2.0, 3.0)), (0.5, 0.3, 0.2)
+    out = np.zeros_like(t)
+    for (lo, hi), w in zip(bands, weights, strict=True):
+        out += w * np.sin(2 * math.pi * rng.uniform(lo, hi) * t + rng.uniform(0, 2 * math.pi))
+    return out
+
+
+def body_motion(traj: Trajectory, suspension: Suspension, seed: int) -> BodyMotion:
+    """Body pitch, roll and bounce at each frame of ``traj`` (see :class:`Suspension`)."""
+    rng = np.random.default_rng([seed, 5])
+    share = suspension.inertial_share
+    road = [road_vibration(rng, traj.t) for _ in range(3)]
+    a_long = traj.accel
+    a_lat = traj.v * traj.omega  # centripetal, towards the centre of the turn
+    pitch = suspension.pitch * (-share * np.tanh(a_long / suspension.accel_ref)
+                                + (1.0 - share) * road[0])
+    roll = suspension.roll * (share * np.tanh(a_lat / suspension.lateral_ref)
+                              + (1.0 - share) * road[1])
+    return BodyMotion(roll, pitch, suspension.bounce * road[2])
+
+
+def camera_poses(mount: CameraMount, body: BodyMotion, suspension: Suspension) -> CameraPoses:
+    """The camera pose of every frame: the mount carried by the body about its pivot."""
+    n = body.pitch.shape[0]
+    pivot = np.array([suspension.pivot_x, 0.0, suspension.pivot_z])
+    lever = mount.position - pivot
+    position = np.empty((n, 3))
+    rotation = np.empty((n, 3, 3))
+    mount_rotation = mount.rotation
+    for k in range(n):
+        body_rotation = rotation_rpy(body.roll[k], body.pitch[k], 0.0)
+        # mount + (R - I) lever: exactly the mount when the body is at rest
+        position[k] = mount.position + (body_rotation - np.eye(3)) @ lever
+        position[k, 2] += body.bounce[k]
+        rotation[k] = body_rotation @ mount_rotation
+    return CameraPoses(position, rotation)
 
 
 @dataclass
 class Trajectory:
-    """Ground truth at each frame: base_link pose in odom and twist in base_link."""
+    """Ground truth at each frame: base_link pose in odom and twist in base_link.
+
+    The twist (``v``, ``omega``) is the instantaneous one at each frame's stamp. ``body`` and
+    ``camera`` (set by :func:`render_scenario`) are the sprung body's motion and the true
+    camera pose in base_link at each frame; they are not part of the ground-truth odometry.
+    """
 
     t: np.ndarray  # s since the first frame
     x: np.ndarray
@@ -310,11 +511,22 @@ class Trajectory:
     omega: np.ndarray  # yaw rate (rad/s)
     steer: np.ndarray
     wheelbase: float = WHEELBASE
+    accel: np.ndarray | None = None  # dv/dt (m/s^2)
+    body: BodyMotion | None = None
+    camera: CameraPoses | None = None
 
     @property
     def length(self) -> float:
         """Path length (m) from the first to the last frame."""
         return float(np.hypot(np.diff(self.x), np.diff(self.y)).sum())
+
+
+def mount_camera(traj: Trajectory, mount, suspension: Suspension = RIGID,
+                 seed: int = 0) -> Trajectory:
+    """``traj`` with the body motion and the true camera pose of every frame filled in."""
+    body = body_motion(traj, suspension, seed)
+    return dataclasses.replace(traj, body=body,
+                               camera=camera_poses(CameraMount.of(mount), body, suspension))
 
 
 def _smooth_profile(rng, duration, lo, hi, knot_dt, symmetric=False):
@@ -373,7 +585,9 @@ def make_trajectory(scenario: Scenario, frames: int, rate: float, seed: int,
     t = np.arange(frames) * dt
     v = speed(t)
     st = steer(t)
-    return Trajectory(t, x, y, yaw, v, v * np.tan(st) / wheelbase, st, wheelbase)
+    h = 1e-5  # the profiles are C1: a central difference gives the acceleration
+    accel = (speed(t + h) - speed(t - h)) / (2 * h)
+    return Trajectory(t, x, y, yaw, v, v * np.tan(st) / wheelbase, st, wheelbase, accel)
 
 
 @dataclass(frozen=True)
@@ -393,7 +607,7 @@ class Box:
 
 
 def make_obstacles(traj: Trajectory, scenario: Scenario, seed: int,
-                   mounting: Mounting | None = None) -> list[Box]:
+                   mounting=None) -> list[Box]:
     """Random boxes beside (and sometimes just off, ahead on) the path, never on it."""
     rng = np.random.default_rng([seed, 3])
     # Path samples, extended 40 m beyond the last pose along its heading.
@@ -441,32 +655,46 @@ def make_obstacles(traj: Trajectory, scenario: Scenario, seed: int,
 # --------------------------------------------------------------------------------------------
 
 
+def _rotate(rotation: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """``rotation @ vectors`` for (3, N) float32 vectors.
+
+    Written out: BLAS threads stall such thin products on a busy machine.
+    """
+    return np.stack([rotation[i, 0] * vectors[0] + rotation[i, 1] * vectors[1]
+                     + rotation[i, 2] * vectors[2] for i in range(3)])
+
+
 class Renderer:
     """Render mono8 images of the ground (and boxes) for base_link poses in odom.
 
-    All per-pixel ground geometry is fixed in base_link (planar motion), so it is computed
-    once: ground hit points, mip levels, haze. Per frame only a 2-D rigid transform, the
-    texture look-ups, the boxes and the noise are computed.
+    For the nominal (rigid) mount all per-pixel ground geometry is fixed in base_link (planar
+    motion), so it is computed once: ground hit points, mip levels, haze; per frame only a 2-D
+    rigid transform, the texture look-ups, the boxes and the noise. A camera moving on a
+    sprung body (:meth:`render_frame`, :meth:`render_pose`) gets its ground intersection per
+    frame, for every pixel whose nominal ray is less than ``max_tilt`` above the horizon;
+    the mip levels stay those of the nominal pose (the body moves by a degree or two).
     """
 
-    def __init__(self, camera: SynthCamera | None = None, mounting: Mounting | None = None,
+    def __init__(self, camera: SynthCamera | None = None, mounting=None,
                  texture: Texture | None = None, boxes=(), *, max_range: float = 60.0,
                  noise_sigma: float = 1.5, seed: int = 0, illumination: bool = True,
-                 haze: bool = True) -> None:
+                 haze: bool = True, max_tilt: float = math.radians(4.0)) -> None:
         self.camera = camera or SynthCamera()
-        self.mounting = mounting or DEFAULT_MOUNTING
+        self.mounting = CameraMount.of(mounting or DEFAULT_MOUNTING)
         self.texture = texture if texture is not None else make_ground_texture(seed)
         self.boxes = list(boxes)
         self.max_range = float(max_range)
         self.noise_sigma = float(noise_sigma)
         self.seed = seed
         self.illumination = illumination
+        self.haze = haze
         cam, mnt = self.camera, self.mounting
         h, w = cam.height, cam.width
         rays = cam.rays().reshape(-1, 3)
-        d = rays @ mnt.base_from_optical.T
+        self.base_from_optical = mnt.rotation @ BODY_FROM_OPTICAL
+        d = rays @ self.base_from_optical.T
         d /= np.linalg.norm(d, axis=1, keepdims=True)
-        self.dirs = d.astype(np.float32)  # unit rays in base_link
+        self.dirs = np.ascontiguousarray(d.T, np.float32)  # (3, N) unit rays in base_link
         self.origin = mnt.position
         cz = self.origin[2]
         if cz <= 0:
@@ -491,21 +719,38 @@ class Renderer:
         self.g_l0 = l0[order]
         self.g_frac = (level[idx] - l0)[order].astype(np.float32)
         self.g_pts = gp[self.g_idx]
-        # Sky gradient (depends on the ray's elevation only) and haze over distance.
-        elev = np.arcsin(np.clip(d[:, 2], -1, 1))
-        self.sky = (196.0 + 45.0 * np.sin(np.clip(elev, 0, None)) ** 0.7
-                    - 12.0 * np.clip(-elev, 0, 0.2) / 0.2).astype(np.float32)
-        rr = dist[self.g_idx]
-        if haze:
-            s = np.clip((rr - 0.5 * max_range) / (0.5 * max_range), 0, 1)
-            fog = 0.12 * (1 - np.exp(-rr / 30.0)) + 0.88 * s * s * (3 - 2 * s)
-        else:
-            fog = np.zeros_like(rr)
-        self.g_fog = np.clip(fog, 0, 1).astype(np.float32)
+        self.sky = self._sky(d[:, 2])
+        self.g_fog = self._haze(dist[self.g_idx])
         # Vignetting (fixed per pixel).
         uu, vv = np.meshgrid((np.arange(w) - cam.cx) / w, (np.arange(h) - cam.cy) / h)
         self.vignette = (1.0 - 0.35 * (uu * uu + vv * vv)).ravel().astype(np.float32)
         self.ground_mask = ground.reshape(h, w)
+        # Pixels a tilted camera may see the ground through, sorted by their nominal level.
+        unit_rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+        self._unit_rays = np.ascontiguousarray(unit_rays.T, np.float32)  # (3, N)
+        cand = np.flatnonzero(d[:, 2] < math.sin(max_tilt))
+        cand_level = np.where(ground[cand], level[cand], self.texture.nlevels - 1.0)
+        c0 = np.floor(cand_level).astype(np.int64)
+        order = np.argsort(c0, kind='stable')
+        self._c_idx = cand[order]
+        self._c_l0 = c0[order]
+        self._c_frac = (cand_level[order] - c0[order]).astype(np.float32)
+        self._c_rays = np.ascontiguousarray(self._unit_rays[:, self._c_idx])
+
+    @staticmethod
+    def _sky(up: np.ndarray) -> np.ndarray:
+        """Sky grey level from each unit ray's upward component (its elevation only)."""
+        elev = np.arcsin(np.clip(up, -1, 1))
+        return (196.0 + 45.0 * np.sin(np.clip(elev, 0, None)) ** 0.7
+                - 12.0 * np.clip(-elev, 0, 0.2) / 0.2).astype(np.float32)
+
+    def _haze(self, dist: np.ndarray) -> np.ndarray:
+        """Blend factor towards the sky for ground at ``dist`` m (1 = all sky)."""
+        if not self.haze:
+            return np.zeros(dist.shape, np.float32)
+        s = np.clip((dist - 0.5 * self.max_range) / (0.5 * self.max_range), 0, 1)
+        fog = 0.12 * (1 - np.exp(-dist / 30.0)) + 0.88 * s * s * (3 - 2 * s)
+        return np.clip(fog, 0, 1).astype(np.float32)
 
     def ground_points_base(self) -> np.ndarray:
         """(H, W, 2) ground hit point of every pixel in base_link (NaN = no ground)."""
@@ -523,7 +768,6 @@ class Renderer:
 
     def render(self, x: float, y: float, yaw: float, k: int = 0) -> np.ndarray:
         """Render the image seen from base_link pose (x, y, yaw) in odom; frame index k."""
-        cam = self.camera
         img = self.sky.copy()
         c, s = math.cos(yaw), math.sin(yaw)
         gx = x + c * self.g_pts[:, 0] - s * self.g_pts[:, 1]
@@ -532,18 +776,85 @@ class Renderer:
         sky = img[self.g_idx]
         img[self.g_idx] = val + (sky - val) * self.g_fog
         if self.boxes:
-            self._render_boxes(img, x, y, yaw)
+            self._render_boxes(img, x, y, yaw, self.origin, self.dirs, self.t_ground.copy(),
+                               self.sky)
+        return self._finish(img, k)
+
+    def render_frame(self, traj: Trajectory, k: int) -> np.ndarray:
+        """Frame k of ``traj``: its base_link pose and, when set, its true camera pose."""
+        if traj.camera is None:
+            return self.render(traj.x[k], traj.y[k], traj.yaw[k], k)
+        return self.render_pose(traj.x[k], traj.y[k], traj.yaw[k], k,
+                                traj.camera.position[k], traj.camera.base_from_optical(k))
+
+    def render_pose(self, x: float, y: float, yaw: float, k: int, position: np.ndarray,
+                    base_from_optical: np.ndarray) -> np.ndarray:
+        """Render from base_link pose (x, y, yaw) with the camera moved on the body.
+
+        ``position`` (3,) and ``base_from_optical`` (3x3) are the camera's pose in base_link
+        at this frame.
+        """
+        if (np.array_equal(position, self.origin)
+                and np.array_equal(base_from_optical, self.base_from_optical)):
+            return self.render(x, y, yaw, k)  # the nominal pose: geometry precomputed
+        position = np.asarray(position, np.float64)
+        if position[2] <= 0:
+            raise ValueError('the camera must stay above the ground')
+        # float32 throughout: ground points within max_range of the camera, and the odom
+        # position wrapped to the texture's period (the texture repeats exactly).
+        rotation = np.asarray(base_from_optical, np.float32)
+        dirs = _rotate(rotation, self._unit_rays)
+        sky = self._sky_fast(dirs[2])
+        img = sky.copy()
+        d = _rotate(rotation, self._c_rays)
+        depression = -d[2]
+        down = depression > 1e-6
+        t = np.float32(position[2]) / np.where(down, depression, np.float32(1.0))
+        dist = t * np.hypot(d[0], d[1])
+        ground = down & (dist < self.max_range)
+        t[~ground] = 0.0  # no ground within range: sampled at the camera's foot, fog hides it
+        bx = np.float32(position[0]) + t * d[0]
+        by = np.float32(position[1]) + t * d[1]
+        c, s = np.float32(math.cos(yaw)), np.float32(math.sin(yaw))
+        period = self.texture.texel * self.texture.sizes[0]
+        val = self.texture.sample_sorted(np.float32(x % period) + c * bx - s * by,
+                                         np.float32(y % period) + s * bx + c * by,
+                                         self._c_l0, self._c_frac)
+        fog = np.where(ground, self._haze(dist), np.float32(1.0))
+        behind = img[self._c_idx]
+        img[self._c_idx] = val + (behind - val) * fog
+        if self.boxes:
+            depth = np.full(img.shape[0], np.inf)
+            depth[self._c_idx[ground]] = t[ground]
+            self._render_boxes(img, x, y, yaw, position, dirs, depth, sky)
+        return self._finish(img, k)
+
+    @staticmethod
+    def _sky_fast(up: np.ndarray) -> np.ndarray:
+        """:meth:`_sky` in float32 arithmetic (``sin(arcsin(up)) = up``)."""
+        return (np.float32(196.0) + np.float32(45.0) * np.maximum(up, 0) ** np.float32(0.7)
+                - np.float32(60.0) * np.clip(-np.arcsin(np.clip(up, -1, 1)), 0, 0.2))
+
+    def _finish(self, img: np.ndarray, k: int) -> np.ndarray:
+        """Vignetting, illumination and sensor noise; mono8 (H, W)."""
         img *= self.vignette * self.gain(k)
         if self.noise_sigma > 0:
             rng = np.random.default_rng([self.seed, 4, k])
             img += rng.standard_normal(img.shape[0], np.float32) * np.float32(self.noise_sigma)
+        cam = self.camera
         return np.clip(img + 0.5, 0, 255).astype(np.uint8).reshape(cam.height, cam.width)
 
-    def _render_boxes(self, img: np.ndarray, x: float, y: float, yaw: float) -> None:
+    def _render_boxes(self, img: np.ndarray, x: float, y: float, yaw: float,
+                      origin: np.ndarray, dirs: np.ndarray, depth: np.ndarray,
+                      sky: np.ndarray) -> None:
+        """Draw the boxes over ``img`` seen from base_link pose (x, y, yaw).
+
+        ``origin`` and the unit pixel rays ``dirs`` (3, N) are in base_link; ``depth`` is the
+        ground's ray length per pixel, ``sky`` the sky behind the haze.
+        """
         c, s = math.cos(yaw), math.sin(yaw)
-        ox, oy, oz = self.origin
+        ox, oy, oz = origin
         cwx, cwy = x + c * ox - s * oy, y + s * ox + c * oy  # camera centre in odom
-        depth = self.t_ground.copy()
         cands = []
         for b in self.boxes:
             dx, dy = b.x - cwx, b.y - cwy
@@ -558,12 +869,14 @@ class Renderer:
         for dist, b, vb, r in cands:
             if dist > r * 1.001:
                 cos_th = math.cos(math.asin(r / dist))
-                sel = np.flatnonzero(self.dirs @ vb.astype(np.float32) > cos_th)
+                vb32 = vb.astype(np.float32)
+                sel = np.flatnonzero(dirs[0] * vb32[0] + dirs[1] * vb32[1] + dirs[2] * vb32[2]
+                                     > cos_th)
             else:
-                sel = np.arange(self.dirs.shape[0])
+                sel = np.arange(dirs.shape[1])
             if sel.size == 0:
                 continue
-            d = self.dirs[sel].astype(np.float64)
+            d = dirs[:, sel].T.astype(np.float64)
             a = yaw - b.yaw  # base → box rotation
             ca, sa = math.cos(a), math.sin(a)
             dlx = ca * d[:, 0] - sa * d[:, 1]
@@ -602,7 +915,7 @@ class Renderer:
             rr = tn
             fs = np.clip((rr - 0.5 * self.max_range) / (0.5 * self.max_range), 0, 1)
             fog = 0.12 * (1 - np.exp(-rr / 30.0)) + 0.88 * fs * fs * (3 - 2 * fs)
-            img[idx] = val + (img[idx] * 0 + self.sky[idx] - val) * fog
+            img[idx] = val + (img[idx] * 0 + sky[idx] - val) * fog
             depth[idx] = tn
 
 
@@ -679,46 +992,56 @@ class SynthResult:
     rate: float
     seed: int
     camera: SynthCamera
-    mounting: Mounting
+    mounting: CameraMount
     trajectory: Trajectory = field(repr=False)
+    suspension: Suspension = RIGID
     obstacles: int = 0
     seconds: float = 0.0
 
 
 def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0, *,
-                    rate: float = 30.0, camera: SynthCamera | None = None,
-                    mounting: Mounting | None = None, noise_sigma: float = 1.5,
+                    rate: float = 30.0, camera: SynthCamera | None = None, mounting=None,
+                    suspension: Suspension | None = None, noise_sigma: float = 1.5,
                     max_range: float = 60.0, obstacles: bool = True):
     """Build the scene; return ``(renderer, trajectory)``.
 
-    ``renderer.render(traj.x[k], traj.y[k], traj.yaw[k], k)`` is frame k of the bag.
+    ``mounting`` (a :class:`CameraMount` or anything with its six numbers) and ``suspension``
+    default to the scenario's. ``renderer.render_frame(traj, k)`` is frame k of the bag;
+    ``traj.camera`` holds the true camera pose of every frame.
     """
     if scenario not in SCENARIOS:
         raise ValueError(f'unknown scenario {scenario!r} (choose from {", ".join(SCENARIOS)})')
     sc = SCENARIOS[scenario]
-    mounting = mounting or DEFAULT_MOUNTING
-    traj = make_trajectory(sc, frames, rate, seed)
+    mounting = CameraMount.of(mounting or sc.mounting)
+    suspension = sc.suspension if suspension is None else suspension
+    traj = mount_camera(make_trajectory(sc, frames, rate, seed), mounting, suspension, seed)
     boxes = make_obstacles(traj, sc, seed, mounting) if obstacles else []
     renderer = Renderer(camera, mounting, make_ground_texture(seed), boxes,
-                        max_range=max_range, noise_sigma=noise_sigma, seed=seed)
+                        max_range=max_range, noise_sigma=noise_sigma, seed=seed,
+                        max_tilt=suspension.pitch + suspension.roll + math.radians(1.0))
     return renderer, traj
 
 
 def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: int = 0, *,
-                 rate: float = 30.0, camera: SynthCamera | None = None,
-                 mounting: Mounting | None = None, compressed: bool = False,
+                 rate: float = 30.0, camera: SynthCamera | None = None, mounting=None,
+                 suspension: Suspension | None = None, compressed: bool = False,
                  jpeg_quality: int = 90, noise_sigma: float = 1.5, max_range: float = 60.0,
                  obstacles: bool = True, storage_compression: bool = True,
                  params_out=None, progress: bool = False) -> SynthResult:
-    """Render a scenario and write the rosbag2 bag (MCAP, zstd chunks) at ``out_path``."""
+    """Render a scenario and write the rosbag2 bag (MCAP, zstd chunks) at ``out_path``.
+
+    ``mounting`` and ``suspension`` default to the scenario's (see :func:`render_scenario`).
+    """
     from planar_vo.bag import BagWriter, typestore
 
     t0 = time.monotonic()
     camera = camera or SynthCamera()
-    mounting = mounting or DEFAULT_MOUNTING
     renderer, traj = render_scenario(scenario, frames, seed, rate=rate, camera=camera,
-                                     mounting=mounting, noise_sigma=noise_sigma,
-                                     max_range=max_range, obstacles=obstacles)
+                                     mounting=mounting, suspension=suspension,
+                                     noise_sigma=noise_sigma, max_range=max_range,
+                                     obstacles=obstacles)
+    mounting = renderer.mounting
+    suspension = SCENARIOS[scenario].suspension if suspension is None else suspension
     ts = typestore()
     img_topic = COMPRESSED_TOPIC if compressed else IMAGE_TOPIC
     img_type = 'sensor_msgs/msg/CompressedImage' if compressed else 'sensor_msgs/msg/Image'
@@ -729,7 +1052,7 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
         bag.add_topic(ODOM_TOPIC, 'nav_msgs/msg/Odometry')
         for k in range(frames):
             ns = EPOCH_NS + int(round(k * 1e9 / rate))
-            img = renderer.render(traj.x[k], traj.y[k], traj.yaw[k], k)
+            img = renderer.render_frame(traj, k)
             msg = compressed_msg(ts, img, ns, jpeg_quality) if compressed \
                 else image_msg(ts, img, ns)
             # CameraInfo first, as camera drivers do: a reader has the calibration in time.
@@ -742,7 +1065,7 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
     if params_out is not None:
         Path(params_out).write_text(params_yaml(mounting))
     return SynthResult(Path(out_path), scenario, frames, rate, seed, camera, mounting, traj,
-                       len(renderer.boxes), time.monotonic() - t0)
+                       suspension, len(renderer.boxes), time.monotonic() - t0)
 
 
 # --------------------------------------------------------------------------------------------
@@ -813,16 +1136,30 @@ def build_parser() -> argparse.ArgumentParser:
                    help='distortion coefficients in CameraInfo order: 5 for plumb_bob '
                         '(default -0.25 0.07 0.0005 -0.0005 0), 8 for rational_polynomial, '
                         '4 for equidistant')
-    p.add_argument('--camera-x', type=_finite, default=1.2,
+    p.add_argument('--camera-x', type=_finite,
                    help='camera x ahead of the rear axle, m (default 1.2)')
-    p.add_argument('--camera-y', type=_finite, default=0.0,
-                   help='camera y (left), m (default 0)')
-    p.add_argument('--camera-height', type=_positive_float, default=1.25,
+    p.add_argument('--camera-y', type=_finite, help='camera y (left), m (default 0)')
+    p.add_argument('--camera-height', type=_positive_float,
                    help='camera height above the ground, m (default 1.25)')
-    p.add_argument('--camera-roll', type=_finite, default=0.0, help='rad (default 0)')
-    p.add_argument('--camera-pitch', type=_finite, default=math.radians(8.0),
+    p.add_argument('--camera-roll', type=_finite,
+                   help="rad (default: the scenario's, 0 except car 0.5 deg, rough -0.6 deg)")
+    p.add_argument('--camera-pitch', type=_finite,
                    help='rad, positive looks down (default 0.13963 = 8 deg)')
-    p.add_argument('--camera-yaw', type=_finite, default=0.0, help='rad (default 0)')
+    p.add_argument('--camera-yaw', type=_finite,
+                   help="rad, positive looks left (default: the scenario's, 0 except "
+                        'car -0.7 deg, rough 0.8 deg)')
+    p.add_argument('--body-pitch', type=_nonneg, metavar='DEG',
+                   help='sprung body: peak |pitch|, degrees; 60 %% follows the longitudinal '
+                        'acceleration (dive when braking, squat when accelerating), 40 %% is '
+                        "road vibration up to 3 Hz (default: the scenario's, 0 except car 1, "
+                        'rough 2)')
+    p.add_argument('--body-roll', type=_nonneg, metavar='DEG',
+                   help='sprung body: peak |roll|, degrees; 60 %% follows the lateral '
+                        'acceleration v*omega (lean out of turns), 40 %% is road vibration '
+                        "(default: the scenario's, 0 except car 0.6, rough 1.2)")
+    p.add_argument('--bounce', type=_nonneg, metavar='M',
+                   help="sprung body: peak height change, m (default: the scenario's, 0 "
+                        'except car 0.015, rough 0.03)')
     p.add_argument('--noise', type=_nonneg, default=1.5,
                    help='Gaussian image noise sigma, grey levels (default 1.5)')
     p.add_argument('--max-range', type=_positive_float, default=60.0,
@@ -856,8 +1193,22 @@ def main(argv=None) -> int:
         parser.error(f'directory of --params-out {args.params_out} does not exist')
     if args.jpeg_quality > 100:
         parser.error('--jpeg-quality must be in 1..100')
-    if not -1.2 < args.camera_pitch < 1.5 or abs(args.camera_roll) > 0.5:
+    scenario = SCENARIOS[args.scenario]
+    mounting = scenario.mounting
+    given = {name: getattr(args, f'camera_{name}') for name in
+             ('x', 'y', 'height', 'roll', 'pitch', 'yaw')}
+    mounting = dataclasses.replace(mounting, **{k: v for k, v in given.items() if v is not None})
+    if not -1.2 < mounting.pitch < 1.5 or abs(mounting.roll) > 0.5:
         parser.error('camera pitch/roll out of range: the camera must see the ground')
+    body = scenario.suspension
+    suspension = Suspension.degrees(
+        math.degrees(body.pitch) if args.body_pitch is None else args.body_pitch,
+        math.degrees(body.roll) if args.body_roll is None else args.body_roll,
+        body.bounce if args.bounce is None else args.bounce)
+    if max(suspension.pitch, suspension.roll) > math.radians(5.0):
+        parser.error('--body-pitch/--body-roll must be at most 5 degrees')
+    if suspension.bounce > 0.5 * mounting.height:
+        parser.error('--bounce must be at most half the camera height')
     expected = len(DISTORTION_DEFAULTS[args.distortion_model])
     if args.dist and len(args.dist) != expected:
         parser.error(f'--dist: {args.distortion_model} takes {expected} coefficients, '
@@ -867,13 +1218,12 @@ def main(argv=None) -> int:
                                 cx=args.cx, cy=args.cy,
                                 dist=tuple(args.dist) if args.dist else None,
                                 distortion_model=args.distortion_model)
-    mounting = Mounting(x=args.camera_x, y=args.camera_y, height=args.camera_height,
-                        roll=args.camera_roll, pitch=args.camera_pitch, yaw=args.camera_yaw)
     from planar_vo.bag import BagError
 
     try:
         res = generate_bag(out, args.scenario, args.frames, args.seed, rate=args.rate,
-                           camera=camera, mounting=mounting, compressed=args.compressed,
+                           camera=camera, mounting=mounting, suspension=suspension,
+                           compressed=args.compressed,
                            jpeg_quality=args.jpeg_quality, noise_sigma=args.noise,
                            max_range=args.max_range, obstacles=not args.no_obstacles,
                            storage_compression=not args.no_storage_compression,

@@ -45,21 +45,29 @@ def synth_camera_model(renderer):
                        cam.height)
 
 
-def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, camera=None):
+def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, camera=None,
+                 suspension=None):
     """Render a synthetic scenario and run the odometry core on it (no bag, no ROS).
 
-    ``corrupt(k, image, stamp)`` may replace frame k (image, stamp) to inject bad input.
+    The odometry is configured with the mounting the scenario renders with (``overrides``
+    win); ``suspension`` defaults to the scenario's sprung body. ``corrupt(k, image, stamp)``
+    may replace frame k (image, stamp) to inject bad input.
     Returns (results, ground truth poses (N, 3)).
     """
     from planar_vo import config, synth
     from planar_vo.odometry import VisualOdometry
 
-    renderer, traj = synth.render_scenario(scenario, frames, seed, camera=camera)
-    params = config.validate(overrides or {})
+    renderer, traj = synth.render_scenario(scenario, frames, seed, camera=camera,
+                                           suspension=suspension)
+    mount = renderer.mounting
+    params = config.validate({'camera_x': mount.x, 'camera_y': mount.y,
+                              'camera_height': mount.height, 'camera_roll': mount.roll,
+                              'camera_pitch': mount.pitch, 'camera_yaw': mount.yaw,
+                              **(overrides or {})})
     vo = VisualOdometry.from_params(synth_camera_model(renderer), params)
     results = []
     for k in range(frames):
-        image = renderer.render(traj.x[k], traj.y[k], traj.yaw[k], k)
+        image = renderer.render_frame(traj, k)
         stamp = k / 30.0
         if corrupt is not None:
             image, stamp = corrupt(k, image, stamp)

@@ -1,5 +1,6 @@
 """planar_vo_synth: deterministic bags whose geometry agrees with the pipeline's camera model."""
 
+import dataclasses
 import math
 import subprocess
 import sys
@@ -82,7 +83,7 @@ def test_ground_truth_follows_the_bicycle_model():
 def test_rendered_ground_agrees_with_the_pipeline_camera_model():
     """The renderer's own undistortion and ray casting agree with the pipeline's CameraModel."""
     renderer, _ = synth.render_scenario('default', 2, seed=0)
-    mounting = renderer.mounting
+    mounting = Mounting(**dataclasses.asdict(renderer.mounting))
     camera = synth_camera_model(renderer)
     truth = renderer.ground_points_base()
     rng = np.random.default_rng(0)
@@ -306,3 +307,247 @@ def test_bag_errors(tmp_path):
     (tmp_path / 'x.mcap').write_bytes(b'not an mcap file at all')
     with pytest.raises(BagError):
         open_reader(tmp_path / 'x.mcap')
+
+
+# --------------------------------------------------------------------------------------------
+# The renderer's own camera pose, pinned by closed-form cases
+# --------------------------------------------------------------------------------------------
+
+PINHOLE = synth.SynthCamera(width=320, height=240, fx=230.0, fy=230.0, cx=160.0, cy=120.0,
+                            dist=(0.0, 0.0, 0.0, 0.0, 0.0))
+DOT_TEXEL, DOT_TEXTURE_SIZE, DOT_CENTRE = 0.01, 1024, 300
+
+
+@pytest.fixture(scope='module')
+def dot_textures():
+    """A single bright dot per 10.24 m tile, and the same ground without it."""
+    yy, xx = np.mgrid[0:DOT_TEXTURE_SIZE, 0:DOT_TEXTURE_SIZE]
+    dot = 250 * np.exp(-((xx - DOT_CENTRE) ** 2 + (yy - DOT_CENTRE) ** 2) / (2 * 6.0 ** 2))
+    return synth.Texture(dot, DOT_TEXEL), synth.Texture(np.zeros_like(dot), DOT_TEXEL)
+
+
+def dot_pixel(textures, mount, rel, yaw=0.4, pose=None):
+    """Centroid (u, v) of a ground dot at ``rel`` (x, y) in base_link, as rendered.
+
+    ``pose`` (position, base_from_optical) renders through the moving-camera path. The same
+    view without the dot is subtracted, so sky and haze cancel.
+    """
+    images = []
+    world = np.full(2, (DOT_CENTRE + 0.5) * DOT_TEXEL)
+    c, s = math.cos(yaw), math.sin(yaw)
+    base = world - np.array([c * rel[0] - s * rel[1], s * rel[0] + c * rel[1]])
+    for tex in textures:
+        r = synth.Renderer(PINHOLE, mount, tex, noise_sigma=0, illumination=False, haze=False,
+                           max_range=15, max_tilt=math.radians(30))
+        r.vignette[:] = 1
+        if pose is None:
+            images.append(r.render(base[0], base[1], yaw).astype(float))
+        else:
+            images.append(r.render_pose(base[0], base[1], yaw, 0, *pose).astype(float))
+    w = np.clip(images[0] - images[1], 0, None)
+    w[w < 20] = 0
+    assert w.sum() > 0, 'the dot is not in the image'
+    vs, us = np.mgrid[0:w.shape[0], 0:w.shape[1]]
+    return np.array([(w * us).sum() / w.sum(), (w * vs).sum() / w.sum()])
+
+
+def test_camera_pitched_straight_down_sees_the_point_below_at_the_principal_point(
+        dot_textures):
+    f, h = PINHOLE.fx, 1.0
+    mount = synth.CameraMount(x=1.5, y=0.2, height=h, pitch=math.pi / 2)
+    below = dot_pixel(dot_textures, mount, (1.5, 0.2))
+    np.testing.assert_allclose(below, (PINHOLE.cx, PINHOLE.cy), atol=0.2)
+    # image down is backwards along the car, image right is the car's right
+    ahead = dot_pixel(dot_textures, mount, (1.5 + 0.3, 0.2))
+    np.testing.assert_allclose(ahead, (PINHOLE.cx, PINHOLE.cy - f * 0.3 / h), atol=0.2)
+    left = dot_pixel(dot_textures, mount, (1.5, 0.2 + 0.3))
+    np.testing.assert_allclose(left, (PINHOLE.cx - f * 0.3 / h, PINHOLE.cy), atol=0.2)
+
+
+def test_positive_roll_leans_the_camera_right(dot_textures):
+    """A level camera rolled +r (right side down) sees a point a metres straight ahead at
+    u = cx + f h sin(r) / a, v = cy + f h cos(r) / a (worked out by hand)."""
+    f, h, a, r = PINHOLE.fx, 1.25, 4.0, math.radians(10.0)
+    mount = synth.CameraMount(x=1.2, height=h, roll=r)
+    got = dot_pixel(dot_textures, mount, (1.2 + a, 0.0))
+    expected = (PINHOLE.cx + f * h * math.sin(r) / a, PINHOLE.cy + f * h * math.cos(r) / a)
+    np.testing.assert_allclose(got, expected, atol=0.2)
+
+
+def test_positive_yaw_looks_left(dot_textures):
+    """Yawed +y, a level camera sees a point straight ahead right of the centre:
+    u = cx + f tan(y), v = cy + f h / (a cos(y))."""
+    f, h, a, y = PINHOLE.fx, 1.25, 4.0, math.radians(10.0)
+    mount = synth.CameraMount(x=1.2, height=h, yaw=y)
+    got = dot_pixel(dot_textures, mount, (1.2 + a, 0.0))
+    expected = (PINHOLE.cx + f * math.tan(y), PINHOLE.cy + f * h / (a * math.cos(y)))
+    np.testing.assert_allclose(got, expected, atol=0.2)
+
+
+def test_positive_pitch_looks_down(dot_textures):
+    """Pitched +p, a point a metres ahead on the ground is at v = cy + f tan(atan(h/a) - p)."""
+    f, h, a, p = PINHOLE.fx, 1.25, 4.0, math.radians(8.0)
+    got = dot_pixel(dot_textures, synth.CameraMount(x=1.2, height=h, pitch=p), (1.2 + a, 0.0))
+    np.testing.assert_allclose(got, (PINHOLE.cx, PINHOLE.cy + f * math.tan(math.atan(h / a) - p)),
+                               atol=0.2)
+
+
+def test_moving_camera_path_renders_the_pose_it_is_given(dot_textures):
+    """render_pose (per-frame geometry, mip levels of the nominal mount) puts the dot where a
+    renderer built for that mount does."""
+    nominal = synth.CameraMount(x=1.2, height=1.25, pitch=math.radians(8.0))
+    tilted = synth.CameraMount(x=1.25, y=-0.03, height=1.22, roll=math.radians(2.0),
+                               pitch=math.radians(9.5), yaw=math.radians(-1.5))
+    pose = (tilted.position, tilted.rotation @ synth.BODY_FROM_OPTICAL)
+    for rel in ((4.0, 0.5), (7.0, -1.5), (5.0, 1.0)):
+        np.testing.assert_allclose(dot_pixel(dot_textures, nominal, rel, pose=pose),
+                                   dot_pixel(dot_textures, tilted, rel), atol=0.2)
+
+
+def test_rotation_composition_matches_quaternions():
+    """rotation_rpy = q(z, yaw) q(y, pitch) q(x, roll), and rpy_of inverts it."""
+    def quat_matrix(axis, angle):
+        w, (x, y, z) = math.cos(angle / 2), np.asarray(axis) * math.sin(angle / 2)
+        return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    rng = np.random.default_rng(0)
+    for roll, pitch, yaw in rng.uniform(-1.2, 1.2, (20, 3)):
+        expected = (quat_matrix((0, 0, 1), yaw) @ quat_matrix((0, 1, 0), pitch)
+                    @ quat_matrix((1, 0, 0), roll))
+        got = synth.rotation_rpy(roll, pitch, yaw)
+        np.testing.assert_allclose(got, expected, atol=1e-12)
+        np.testing.assert_allclose(synth.rpy_of(got), (roll, pitch, yaw), atol=1e-12)
+
+
+# --------------------------------------------------------------------------------------------
+# The sprung body
+# --------------------------------------------------------------------------------------------
+
+
+def sprung(scenario='car', frames=300, rate=15.0, suspension=None, seed=1):
+    sc = synth.SCENARIOS[scenario]
+    traj = synth.make_trajectory(sc, frames, rate, seed)
+    return synth.mount_camera(traj, sc.mounting, sc.suspension if suspension is None
+                              else suspension, seed)
+
+
+def test_body_dives_when_braking_squats_when_accelerating_and_leans_out_of_turns():
+    """Signs from the geometry, not from the angle convention: braking tips the camera's
+    optical axis further down and moves it forward; a left turn lifts the body's left side."""
+    mount = synth.SCENARIOS['car'].mounting
+    traj = sprung(suspension=synth.Suspension.degrees(1.0, 0.6, 0.0, inertial_share=1.0))
+    axis = traj.camera.rotation[:, :, 0]  # camera body x (optical axis) in base_link
+    left = traj.camera.rotation[:, :, 1]  # camera body y (left) in base_link
+    nominal_axis, nominal_left = mount.rotation[:, 0], mount.rotation[:, 1]
+    braking, accelerating = traj.accel < -0.5, traj.accel > 0.5
+    left_turn, right_turn = traj.v * traj.omega > 0.3, traj.v * traj.omega < -0.3
+    assert braking.sum() > 20 and accelerating.sum() > 20
+    assert left_turn.sum() > 20 and right_turn.sum() > 20
+    assert np.all(axis[braking, 2] < nominal_axis[2])  # dive: looks further down
+    assert np.all(axis[accelerating, 2] > nominal_axis[2])  # squat: looks up
+    # the body pivots about its centre of mass, below the camera: diving moves it forward
+    assert np.all(traj.camera.position[braking, 0] > mount.x)
+    assert np.all(left[left_turn, 2] > nominal_left[2])  # leans right, out of a left turn
+    assert np.all(left[right_turn, 2] < nominal_left[2])
+    np.testing.assert_allclose(traj.body.pitch, -math.radians(1.0) * np.tanh(traj.accel / 1.5))
+
+
+def test_body_amplitudes_match_the_options_and_the_road_stays_below_3_hz():
+    for pitch, roll, bounce in ((1.0, 0.6, 0.015), (2.0, 1.2, 0.03)):
+        traj = sprung(suspension=synth.Suspension.degrees(pitch, roll, bounce))
+        for values, peak in ((traj.body.pitch, math.radians(pitch)),
+                             (traj.body.roll, math.radians(roll)), (traj.body.bounce, bounce)):
+            assert 0.55 * peak < np.max(np.abs(values)) <= peak
+        height = traj.camera.height - synth.SCENARIOS['car'].mounting.height
+        assert np.max(np.abs(height)) < bounce + 0.02 * math.radians(pitch + roll)
+    road = sprung(suspension=synth.Suspension.degrees(1.0, 0.0, 0.0, inertial_share=0.0))
+    spectrum = np.abs(np.fft.rfft(road.body.pitch))
+    freq = np.fft.rfftfreq(road.t.size, 1 / 15.0)
+    assert spectrum[freq > 3.2].max() < 0.05 * spectrum.max()
+    assert spectrum[(freq > 0.5) & (freq < 3.1)].max() == spectrum.max()
+
+
+def test_car_scenarios_move_the_body_and_a_rigid_body_leaves_the_mount_exact():
+    for name, pitch in (('car', 1.0), ('rough', 2.0)):
+        traj = sprung(name)
+        assert np.ptp(traj.body.pitch) > 0.5 * math.radians(pitch)
+        assert np.max(np.abs(traj.body.pitch)) <= math.radians(pitch)
+    car = synth.SCENARIOS['car'].mounting
+    assert (math.degrees(car.roll), math.degrees(car.yaw)) == pytest.approx((0.5, -0.7))
+    rigid = sprung(suspension=synth.RIGID)
+    assert np.all(rigid.camera.position == car.position)
+    assert np.all(rigid.camera.rotation == car.rotation)
+    roll, pitch, yaw = rigid.camera.rpy
+    np.testing.assert_allclose([roll[0], pitch[0], yaw[0]], [car.roll, car.pitch, car.yaw])
+
+
+def test_ground_truth_is_base_link_whatever_the_body_does(tmp_path):
+    _, moving = synth.render_scenario('rough', 40, seed=0, camera=SMALL)
+    _, rigid = synth.render_scenario('rough', 40, seed=0, camera=SMALL, suspension=synth.RIGID)
+    for name in ('t', 'x', 'y', 'yaw', 'v', 'omega'):
+        np.testing.assert_array_equal(getattr(moving, name), getattr(rigid, name))
+    assert np.ptp(moving.camera.rpy[1]) > math.radians(0.5)
+    synth.generate_bag(tmp_path / 'm', 'rough', 5, seed=0, camera=SMALL)
+    synth.generate_bag(tmp_path / 'r', 'rough', 5, seed=0, camera=SMALL,
+                       suspension=synth.RIGID)
+    odom = [[(m.pose.pose.position.x, m.pose.pose.position.y, m.pose.pose.orientation.z,
+              m.twist.twist.linear.x, m.twist.twist.angular.z)
+             for t, _, _, m in read(tmp_path / n) if t == synth.ODOM_TOPIC] for n in 'mr']
+    assert len(odom[0]) == 5 and odom[0] == odom[1]
+    images = [[m.data.tobytes() for t, _, _, m in read(tmp_path / n) if t == synth.IMAGE_TOPIC]
+              for n in 'mr']
+    assert images[0][0] != images[1][0]  # the body moved the camera
+
+
+def test_ground_truth_twist_is_the_instantaneous_twist_at_the_stamp():
+    """At 300 Hz the pose's central differences give the twist at the stamp itself (an
+    average over the frame interval would be off by more than the tolerance)."""
+    traj = synth.make_trajectory(synth.SCENARIOS['rough'], 600, 300.0, seed=4)
+    dt = 1 / 300.0
+    speed = np.hypot(traj.x[2:] - traj.x[:-2], traj.y[2:] - traj.y[:-2]) / (2 * dt)
+    np.testing.assert_allclose(speed, traj.v[1:-1], atol=2e-4)
+    np.testing.assert_allclose((traj.yaw[2:] - traj.yaw[:-2]) / (2 * dt), traj.omega[1:-1],
+                               atol=2e-4)
+    np.testing.assert_allclose((traj.v[2:] - traj.v[:-2]) / (2 * dt), traj.accel[1:-1],
+                               atol=2e-3)
+    half_step = np.abs(traj.v[1:] - traj.v[:-1]).max()
+    assert half_step > 5 * 2e-4  # a twist taken between stamps would fail the checks above
+
+
+def test_sprung_frames_render_obstacles():
+    r, traj = synth.render_scenario('rough', 60, seed=0, noise_sigma=0,
+                                    camera=synth.SynthCamera.scaled(320, 240))
+    assert r.boxes
+    plain = synth.Renderer(r.camera, r.mounting, r.texture, noise_sigma=0, seed=0,
+                           max_tilt=math.radians(4.0))
+    assert any(np.any(r.render_frame(traj, k) != plain.render_frame(traj, k))
+               for k in range(0, 60, 20))
+
+
+def test_cli_body_options(tmp_path):
+    params = tmp_path / 'p.yaml'
+    rc = synth.main([str(tmp_path / 'b'), '--scenario', 'car', '--frames', '2', '--width', '160',
+                     '--height', '120', '--quiet', '--params-out', str(params),
+                     '--body-pitch', '1.5', '--body-roll', '0', '--bounce', '0.01'])
+    assert rc == 0
+    import yaml
+    p = yaml.safe_load(params.read_text())['planar_vo']['ros__parameters']
+    assert math.degrees(p['camera_roll']) == pytest.approx(0.5)
+    assert math.degrees(p['camera_yaw']) == pytest.approx(-0.7)
+    h = subprocess.run([SYNTH, '--help'], capture_output=True, text=True)
+    for opt in ('--body-pitch', '--body-roll', '--bounce', 'car', 'rough'):
+        assert opt in h.stdout
+
+
+@pytest.mark.parametrize('args, message', [
+    (['--body-pitch', '7'], 'at most 5 degrees'),
+    (['--body-roll', '-1'], 'must be a finite number >= 0'),
+    (['--bounce', '0.9'], 'at most half the camera height'),
+])
+def test_cli_body_errors_are_one_line(tmp_path, args, message, capsys):
+    with pytest.raises(SystemExit) as exc:
+        synth.main([str(tmp_path / 'x'), *args])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
