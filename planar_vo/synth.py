@@ -119,6 +119,48 @@ class CameraMount:
 DEFAULT_MOUNTING = CameraMount(x=1.2, y=0.0, height=1.25, pitch=math.radians(8.0))
 
 
+@dataclass(frozen=True)
+class MountingError:
+    """How far a configured mounting is off the true one: angles in degrees, offsets in m."""
+
+    roll: float = 0.0
+    pitch: float = 0.0
+    yaw: float = 0.0
+    x: float = 0.0
+    y: float = 0.0
+    height: float = 0.0
+
+    @classmethod
+    def parse(cls, text: str) -> MountingError:
+        """``'pitch=1.0,roll=-1.0,yaw=1.0,x=0.15'`` (degrees and metres); ValueError if bad."""
+        names = [f.name for f in dataclasses.fields(cls)]
+        values: dict[str, float] = {}
+        for item in filter(None, (part.strip() for part in text.split(','))):
+            name, sep, value = item.partition('=')
+            name = name.strip()
+            if not sep or name not in names:
+                raise ValueError(f'{item!r} is not NAME=VALUE with NAME one of '
+                                 f'{", ".join(names)}')
+            if name in values:
+                raise ValueError(f'{name} is given twice')
+            try:
+                values[name] = float(value)
+            except ValueError:
+                raise ValueError(f'{name}={value.strip()!r} is not a number') from None
+            if not math.isfinite(values[name]):
+                raise ValueError(f'{name} must be finite')
+        if not values:
+            raise ValueError(f'give at least one NAME=VALUE with NAME one of {", ".join(names)}')
+        return cls(**values)
+
+    def apply(self, mount) -> CameraMount:
+        """The configured mounting: ``mount`` with this error added."""
+        m = CameraMount.of(mount)
+        return CameraMount(m.x + self.x, m.y + self.y, m.height + self.height,
+                           m.roll + math.radians(self.roll), m.pitch + math.radians(self.pitch),
+                           m.yaw + math.radians(self.yaw))
+
+
 def params_yaml(mounting) -> str:
     """Node/replay parameter file (``planar_vo: ros__parameters:``) for this mounting."""
     values = {'camera_x': mounting.x, 'camera_y': mounting.y,
@@ -368,6 +410,25 @@ class Suspension:
 
 
 RIGID = Suspension()
+
+
+def exposure_gains(t: np.ndarray, fraction: float, seed: int) -> np.ndarray:
+    """Auto-exposure gain at times ``t`` (s), within 1 +- ``fraction``.
+
+    Half the range is a smooth drift (two slow sines, 0.05-0.3 Hz), half are steps, as an
+    auto-exposure loop makes: a new level every 1.5-4 s, reached from one frame to the next.
+    """
+    t = np.asarray(t, np.float64)
+    if fraction == 0:
+        return np.ones_like(t)
+    rng = np.random.default_rng([seed, 6])
+    smooth = (0.6 * np.sin(2 * math.pi * rng.uniform(0.05, 0.12) * t + rng.uniform(0, 7))
+              + 0.4 * np.sin(2 * math.pi * rng.uniform(0.12, 0.3) * t + rng.uniform(0, 7)))
+    switch = np.cumsum(rng.uniform(1.5, 4.0, int(t.max(initial=0) / 1.5) + 2))
+    levels = rng.uniform(-1.0, 1.0, switch.size + 1)
+    levels[0] = 0.0
+    steps = levels[np.searchsorted(switch, t, side='right')]
+    return 1.0 + 0.5 * fraction * (smooth + steps)
 
 
 @dataclass(frozen=True)
@@ -678,8 +739,10 @@ class Renderer:
     def __init__(self, camera: SynthCamera | None = None, mounting=None,
                  texture: Texture | None = None, boxes=(), *, max_range: float = 60.0,
                  noise_sigma: float = 1.5, seed: int = 0, illumination: bool = True,
-                 haze: bool = True, max_tilt: float = math.radians(4.0)) -> None:
+                 haze: bool = True, max_tilt: float = math.radians(4.0),
+                 exposure: np.ndarray | None = None) -> None:
         self.camera = camera or SynthCamera()
+        self.exposure = None if exposure is None else np.asarray(exposure, np.float64)
         self.mounting = CameraMount.of(mounting or DEFAULT_MOUNTING)
         self.texture = texture if texture is not None else make_ground_texture(seed)
         self.boxes = list(boxes)
@@ -759,12 +822,13 @@ class Renderer:
         return out.reshape(self.camera.height, self.camera.width, 2)
 
     def gain(self, k: int) -> float:
-        """Global illumination gain of frame k (slow, smooth)."""
+        """Global gain of frame k: slow, smooth illumination times the auto-exposure gain."""
+        exposure = 1.0 if self.exposure is None else float(self.exposure[k])
         if not self.illumination:
-            return 1.0
+            return exposure
         ph = (self.seed % 97) * 0.37
-        return 1.0 + 0.05 * math.sin(0.21 * k / 30.0 * 2 * math.pi + ph) \
-            + 0.02 * math.sin(0.9 * k / 30.0 * 2 * math.pi + 2 * ph)
+        return (1.0 + 0.05 * math.sin(0.21 * k / 30.0 * 2 * math.pi + ph)
+                + 0.02 * math.sin(0.9 * k / 30.0 * 2 * math.pi + 2 * ph)) * exposure
 
     def render(self, x: float, y: float, yaw: float, k: int = 0) -> np.ndarray:
         """Render the image seen from base_link pose (x, y, yaw) in odom; frame index k."""
@@ -995,6 +1059,8 @@ class SynthResult:
     mounting: CameraMount
     trajectory: Trajectory = field(repr=False)
     suspension: Suspension = RIGID
+    configured: CameraMount | None = None  # the mounting written to params_out
+    exposure: float = 0.0
     obstacles: int = 0
     seconds: float = 0.0
 
@@ -1002,13 +1068,17 @@ class SynthResult:
 def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0, *,
                     rate: float = 30.0, camera: SynthCamera | None = None, mounting=None,
                     suspension: Suspension | None = None, noise_sigma: float = 1.5,
-                    max_range: float = 60.0, obstacles: bool = True):
+                    max_range: float = 60.0, obstacles: bool = True, exposure: float = 0.0):
     """Build the scene; return ``(renderer, trajectory)``.
 
     ``mounting`` (a :class:`CameraMount` or anything with its six numbers) and ``suspension``
-    default to the scenario's. ``renderer.render_frame(traj, k)`` is frame k of the bag;
-    ``traj.camera`` holds the true camera pose of every frame.
+    default to the scenario's. ``exposure`` is the auto-exposure range (0.2: gain within
+    +-20 %, see :func:`exposure_gains`; ``renderer.exposure`` holds the gain of every frame).
+    ``renderer.render_frame(traj, k)`` is frame k of the bag; ``traj.camera`` holds the true
+    camera pose of every frame.
     """
+    if not 0.0 <= exposure < 1.0:
+        raise ValueError(f'exposure must be in [0, 1), got {exposure}')
     if scenario not in SCENARIOS:
         raise ValueError(f'unknown scenario {scenario!r} (choose from {", ".join(SCENARIOS)})')
     sc = SCENARIOS[scenario]
@@ -1018,7 +1088,8 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
     boxes = make_obstacles(traj, sc, seed, mounting) if obstacles else []
     renderer = Renderer(camera, mounting, make_ground_texture(seed), boxes,
                         max_range=max_range, noise_sigma=noise_sigma, seed=seed,
-                        max_tilt=suspension.pitch + suspension.roll + math.radians(1.0))
+                        max_tilt=suspension.pitch + suspension.roll + math.radians(1.0),
+                        exposure=exposure_gains(traj.t, exposure, seed) if exposure else None)
     return renderer, traj
 
 
@@ -1027,10 +1098,13 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                  suspension: Suspension | None = None, compressed: bool = False,
                  jpeg_quality: int = 90, noise_sigma: float = 1.5, max_range: float = 60.0,
                  obstacles: bool = True, storage_compression: bool = True,
-                 params_out=None, progress: bool = False) -> SynthResult:
+                 params_out=None, configured_error: MountingError | None = None,
+                 exposure: float = 0.0, progress: bool = False) -> SynthResult:
     """Render a scenario and write the rosbag2 bag (MCAP, zstd chunks) at ``out_path``.
 
-    ``mounting`` and ``suspension`` default to the scenario's (see :func:`render_scenario`).
+    ``mounting``, ``suspension`` and ``exposure`` as in :func:`render_scenario`. The images
+    are rendered with ``mounting``; ``params_out`` gets it plus ``configured_error`` (the
+    mounting a user would have configured, to test calibration).
     """
     from planar_vo.bag import BagWriter, typestore
 
@@ -1039,8 +1113,9 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
     renderer, traj = render_scenario(scenario, frames, seed, rate=rate, camera=camera,
                                      mounting=mounting, suspension=suspension,
                                      noise_sigma=noise_sigma, max_range=max_range,
-                                     obstacles=obstacles)
+                                     obstacles=obstacles, exposure=exposure)
     mounting = renderer.mounting
+    configured = (configured_error or MountingError()).apply(mounting)
     suspension = SCENARIOS[scenario].suspension if suspension is None else suspension
     ts = typestore()
     img_topic = COMPRESSED_TOPIC if compressed else IMAGE_TOPIC
@@ -1063,9 +1138,15 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
             bar.update(k + 1)
     bar.close()
     if params_out is not None:
-        Path(params_out).write_text(params_yaml(mounting))
+        text = params_yaml(configured)
+        if configured != mounting:
+            text += (f'# rendered with camera_x {mounting.x!r}, camera_y {mounting.y!r}, '
+                     f'camera_height {mounting.height!r},\n# camera_roll {mounting.roll!r}, '
+                     f'camera_pitch {mounting.pitch!r}, camera_yaw {mounting.yaw!r}\n')
+        Path(params_out).write_text(text)
     return SynthResult(Path(out_path), scenario, frames, rate, seed, camera, mounting, traj,
-                       suspension, len(renderer.boxes), time.monotonic() - t0)
+                       suspension, configured, exposure, len(renderer.boxes),
+                       time.monotonic() - t0)
 
 
 # --------------------------------------------------------------------------------------------
@@ -1104,6 +1185,13 @@ def _nonneg(s):
     if not math.isfinite(v) or v < 0:
         raise argparse.ArgumentTypeError(f'must be a finite number >= 0, got {s}')
     return v
+
+
+def _mounting_error(s):
+    try:
+        return MountingError.parse(s)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -1160,6 +1248,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--bounce', type=_nonneg, metavar='M',
                    help="sprung body: peak height change, m (default: the scenario's, 0 "
                         'except car 0.015, rough 0.03)')
+    p.add_argument('--configured-error', type=_mounting_error, metavar='NAME=VALUE,...',
+                   help='write to --params-out a mounting that is off the rendered one by '
+                        'this much, to test calibration: roll, pitch, yaw in degrees, x, y, '
+                        'height in metres, e.g. pitch=1.0,roll=-1.0,yaw=1.0,x=0.15 (the '
+                        'images still use the true mounting, noted in a comment)')
+    p.add_argument('--exposure', type=_nonneg, default=0.0, metavar='FRACTION',
+                   help='auto-exposure gain changes within +-FRACTION (e.g. 0.2): half a '
+                        'smooth drift, half steps every 1.5-4 s (default 0: off)')
     p.add_argument('--noise', type=_nonneg, default=1.5,
                    help='Gaussian image noise sigma, grey levels (default 1.5)')
     p.add_argument('--max-range', type=_positive_float, default=60.0,
@@ -1209,6 +1305,12 @@ def main(argv=None) -> int:
         parser.error('--body-pitch/--body-roll must be at most 5 degrees')
     if suspension.bounce > 0.5 * mounting.height:
         parser.error('--bounce must be at most half the camera height')
+    if args.exposure > 0.5:
+        parser.error('--exposure must be at most 0.5 (a gain within +-50 %)')
+    if args.configured_error and not args.params_out:
+        parser.error('--configured-error needs --params-out (it only changes that file)')
+    if args.configured_error and args.configured_error.apply(mounting).height <= 0:
+        parser.error('--configured-error: the configured camera height must stay > 0')
     expected = len(DISTORTION_DEFAULTS[args.distortion_model])
     if args.dist and len(args.dist) != expected:
         parser.error(f'--dist: {args.distortion_model} takes {expected} coefficients, '
@@ -1227,7 +1329,8 @@ def main(argv=None) -> int:
                            jpeg_quality=args.jpeg_quality, noise_sigma=args.noise,
                            max_range=args.max_range, obstacles=not args.no_obstacles,
                            storage_compression=not args.no_storage_compression,
-                           params_out=args.params_out, progress=not args.quiet)
+                           params_out=args.params_out, configured_error=args.configured_error,
+                           exposure=args.exposure, progress=not args.quiet)
     except (BagError, OSError, ValueError) as err:
         print(f'planar_vo_synth: error: {err}', file=sys.stderr)
         return 2

@@ -46,11 +46,13 @@ def synth_camera_model(renderer):
 
 
 def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, camera=None,
-                 suspension=None):
+                 suspension=None, mounting=None, configured=None, exposure=0.0):
     """Render a synthetic scenario and run the odometry core on it (no bag, no ROS).
 
-    The odometry is configured with the mounting the scenario renders with (``overrides``
-    win); ``suspension`` defaults to the scenario's sprung body. ``corrupt(k, image, stamp)``
+    The images are rendered with ``mounting`` (default: the scenario's) on ``suspension``
+    (default: the scenario's body) with auto-exposure changes within +-``exposure``. The
+    odometry is configured with ``configured`` (a mounting, or a ``synth.MountingError`` off
+    the true one; default: the true one); ``overrides`` win. ``corrupt(k, image, stamp)``
     may replace frame k (image, stamp) to inject bad input.
     Returns (results, ground truth poses (N, 3)).
     """
@@ -58,8 +60,11 @@ def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, came
     from planar_vo.odometry import VisualOdometry
 
     renderer, traj = synth.render_scenario(scenario, frames, seed, camera=camera,
-                                           suspension=suspension)
-    mount = renderer.mounting
+                                           mounting=mounting, suspension=suspension,
+                                           exposure=exposure)
+    if configured is None or isinstance(configured, synth.MountingError):
+        configured = (configured or synth.MountingError()).apply(renderer.mounting)
+    mount = configured
     params = config.validate({'camera_x': mount.x, 'camera_y': mount.y,
                               'camera_height': mount.height, 'camera_roll': mount.roll,
                               'camera_pitch': mount.pitch, 'camera_yaw': mount.yaw,

@@ -551,3 +551,94 @@ def test_cli_body_errors_are_one_line(tmp_path, args, message, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
+
+
+# --------------------------------------------------------------------------------------------
+# Configured mounting errors and auto-exposure
+# --------------------------------------------------------------------------------------------
+
+
+def test_sidecar_shows_the_configured_mounting_while_images_use_the_true_one(tmp_path):
+    import yaml
+    error = synth.MountingError.parse('pitch=1.0,roll=-1.0,yaw=1.0,x=0.15')
+    assert error == synth.MountingError(roll=-1.0, pitch=1.0, yaw=1.0, x=0.15)
+    synth.generate_bag(tmp_path / 'e', 'car', 2, seed=0, camera=SMALL,
+                       params_out=tmp_path / 'e.yaml', configured_error=error)
+    synth.generate_bag(tmp_path / 't', 'car', 2, seed=0, camera=SMALL,
+                       params_out=tmp_path / 't.yaml')
+    true = synth.SCENARIOS['car'].mounting
+    p = yaml.safe_load((tmp_path / 'e.yaml').read_text())['planar_vo']['ros__parameters']
+    assert p['camera_pitch'] == pytest.approx(true.pitch + math.radians(1.0), abs=1e-12)
+    assert p['camera_roll'] == pytest.approx(true.roll - math.radians(1.0), abs=1e-12)
+    assert p['camera_yaw'] == pytest.approx(true.yaw + math.radians(1.0), abs=1e-12)
+    assert p['camera_x'] == pytest.approx(true.x + 0.15, abs=1e-12)
+    assert (p['camera_y'], p['camera_height']) == (true.y, true.height)
+    assert 'rendered with' in (tmp_path / 'e.yaml').read_text()
+    exact = yaml.safe_load((tmp_path / 't.yaml').read_text())['planar_vo']['ros__parameters']
+    assert exact['camera_pitch'] == true.pitch and exact['camera_roll'] == true.roll
+    images = [[m.data.tobytes() for t, _, _, m in read(tmp_path / n) if t == synth.IMAGE_TOPIC]
+              for n in 'et']
+    assert images[0] == images[1]  # the error is only in the sidecar
+
+
+def test_run_scenario_configures_the_odometry_with_the_configured_mounting(monkeypatch):
+    from planar_vo import odometry
+    from test.conftest import run_scenario
+    seen = []
+    original = odometry.VisualOdometry.from_params
+    monkeypatch.setattr(odometry.VisualOdometry, 'from_params', classmethod(
+        lambda cls, camera, params: seen.append(params) or original(camera, params)))
+    run_scenario('car', 2, camera=SMALL, configured=synth.MountingError(yaw=1.0, height=0.1))
+    true = synth.SCENARIOS['car'].mounting
+    assert seen[0]['camera_yaw'] == pytest.approx(true.yaw + math.radians(1.0))
+    assert seen[0]['camera_height'] == pytest.approx(true.height + 0.1)
+    assert seen[0]['camera_roll'] == true.roll
+
+
+@pytest.mark.parametrize('text, message', [
+    ('pitch=abc', 'not a number'), ('tilt=1', 'not NAME=VALUE'), ('pitch', 'not NAME=VALUE'),
+    ('pitch=1,pitch=2', 'given twice'), ('', 'at least one'), ('x=nan', 'finite'),
+])
+def test_configured_error_spec_errors(text, message):
+    with pytest.raises(ValueError, match=message):
+        synth.MountingError.parse(text)
+
+
+def test_exposure_gain_has_smooth_drift_and_steps_within_the_range():
+    t = np.arange(900) / 30.0
+    gains = synth.exposure_gains(t, 0.2, seed=3)
+    assert np.all(np.abs(gains - 1) <= 0.2) and np.ptp(gains) > 0.15
+    jumps = np.abs(np.diff(gains))
+    assert np.sum(jumps > 0.01) >= 4  # steps from one frame to the next
+    assert np.median(jumps) < 0.002  # and a smooth drift in between
+    np.testing.assert_array_equal(gains, synth.exposure_gains(t, 0.2, seed=3))
+    assert np.all(synth.exposure_gains(t, 0.0, seed=3) == 1.0)
+
+
+def test_exposure_scales_the_rendered_image_by_the_gain():
+    kw = dict(camera=SMALL, noise_sigma=0.0, obstacles=False, rate=10.0)
+    plain, traj = synth.render_scenario('car', 60, seed=0, **kw)
+    exposed, _ = synth.render_scenario('car', 60, seed=0, exposure=0.2, **kw)
+    gains = exposed.exposure
+    assert np.ptp(gains) > 0.1
+    for k in (0, 30, 59):
+        a = plain.render_frame(traj, k).astype(float)
+        b = exposed.render_frame(traj, k).astype(float)
+        ok = (a > 20) & (a < 200)
+        ratio = np.median(b[ok] / a[ok])
+        assert ratio == pytest.approx(gains[k], abs=0.01), (k, ratio, gains[k])
+
+
+@pytest.mark.parametrize('args, message', [
+    (['--configured-error', 'pitch=1'], 'needs --params-out'),
+    (['--configured-error', 'yaw=x', '--params-out', 'P'], 'not a number'),
+    (['--configured-error', 'height=-2', '--params-out', 'P'], 'height must stay > 0'),
+    (['--exposure', '0.8'], 'at most 0.5'),
+])
+def test_cli_mounting_error_and_exposure_errors_are_one_line(tmp_path, args, message, capsys):
+    args = [str(tmp_path / 'p.yaml') if a == 'P' else a for a in args]
+    with pytest.raises(SystemExit) as exc:
+        synth.main([str(tmp_path / 'x'), *args])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
