@@ -1,0 +1,87 @@
+"""Synthetic rosbag2 bags with ground truth: a camera on a car driving over textured ground.
+
+Geometry (all exact, the odometry is tested against it):
+
+- base_link (REP-103: x forward, y left, z up) is on the rear axle, on the ground (z = 0 is
+  the ground plane); odom is the base_link pose at the first frame.
+- The vehicle follows a kinematic bicycle model at the rear axle (wheelbase 2.7 m) with
+  smooth (C1) speed and steering profiles: ``yaw_rate = v * tan(steer) / wheelbase``.
+- The camera body frame (x forward, y left, z up) sits at (camera_x, camera_y,
+  camera_height) in base_link, rotated by ``Rz(yaw) @ Ry(pitch) @ Rx(roll)``; positive pitch
+  tilts the camera down. The optical frame (x right, y down, z forward) is
+  ``R_body_optical = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]`` relative to the body frame.
+  The renderer composes these rotations itself (axis-angle, :func:`rotation_rpy`), never with
+  the pipeline's ``camera.Mounting``, so a wrong composition there cannot cancel out.
+- A sprung body (:class:`Suspension`) may carry the camera: it pitches with the longitudinal
+  acceleration (dive, squat), rolls with the lateral one (lean out of turns), both plus road
+  vibration, and bounces; it rotates about a pivot at the body's centre of mass, so the camera
+  also moves. The ground truth stays base_link on the ground; the true camera pose of every
+  frame is ``Trajectory.camera``.
+- Images are rendered *with* the plumb_bob distortion that CameraInfo describes: every pixel
+  (u, v) (OpenCV convention, pixel centres at integer coordinates) is undistorted to a ray.
+
+Rendering: a periodic pink-noise asphalt texture (20.48 m tile, 5 mm texels) sampled through
+a mip-map with trilinear filtering, level chosen from each pixel's ground footprint; haze and a
+smooth sky gradient beyond ``max_range``; textured vertical boxes as outliers (ray/box slab
+intersection); vignetting, slow global illumination change and Gaussian noise. Deterministic
+for a seed.
+
+Modules: ``mount`` (the camera's mounting, own rotations), ``lens`` (intrinsics, distortion),
+``scene`` (texture, boxes), ``vehicle`` (bicycle model, sprung body, true camera poses),
+``render`` (images, auto-exposure), ``scenarios`` (named scenarios, building one),
+``bagfile`` (messages, writing the bag), ``cli`` (``planar_vo_synth``).
+"""
+
+from planar_vo.synth.bagfile import (
+    COMPRESSED_TOPIC,
+    EPOCH_NS,
+    IMAGE_TOPIC,
+    INFO_TOPIC,
+    ODOM_TOPIC,
+    OPTICAL_FRAME,
+    SynthResult,
+    camera_info_msg,
+    compressed_msg,
+    generate_bag,
+    image_msg,
+    odometry_msg,
+)
+from planar_vo.synth.cli import build_parser, main
+from planar_vo.synth.lens import DISTORTION_DEFAULTS, SynthCamera, undistort_pixels
+from planar_vo.synth.mount import (
+    BODY_FROM_OPTICAL,
+    DEFAULT_MOUNTING,
+    CameraMount,
+    MountingError,
+    axis_rotation,
+    params_yaml,
+    rotation_rpy,
+    rpy_of,
+)
+from planar_vo.synth.render import Renderer, exposure_gains
+from planar_vo.synth.scenarios import SCENARIOS, Scenario, render_scenario
+from planar_vo.synth.scene import Box, Texture, make_ground_texture, make_obstacles
+from planar_vo.synth.vehicle import (
+    RIGID,
+    WHEELBASE,
+    BodyMotion,
+    CameraPoses,
+    Suspension,
+    Trajectory,
+    body_motion,
+    camera_poses,
+    make_trajectory,
+    mount_camera,
+    road_vibration,
+)
+
+__all__ = [
+    'BODY_FROM_OPTICAL', 'COMPRESSED_TOPIC', 'DEFAULT_MOUNTING', 'DISTORTION_DEFAULTS',
+    'EPOCH_NS', 'IMAGE_TOPIC', 'INFO_TOPIC', 'ODOM_TOPIC', 'OPTICAL_FRAME', 'RIGID', 'SCENARIOS',
+    'WHEELBASE', 'BodyMotion', 'Box', 'CameraMount', 'CameraPoses', 'MountingError', 'Renderer',
+    'Scenario', 'Suspension', 'SynthCamera', 'SynthResult', 'Texture', 'Trajectory',
+    'axis_rotation', 'body_motion', 'build_parser', 'camera_info_msg', 'camera_poses',
+    'compressed_msg', 'exposure_gains', 'generate_bag', 'image_msg', 'main', 'make_ground_texture',
+    'make_obstacles', 'make_trajectory', 'mount_camera', 'odometry_msg', 'params_yaml',
+    'render_scenario', 'road_vibration', 'rotation_rpy', 'rpy_of', 'undistort_pixels',
+]

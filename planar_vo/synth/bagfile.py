@@ -1,0 +1,157 @@
+"""ROS messages of the synthetic camera and ground truth, and writing them to a bag."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from planar_vo.progress import Progress
+from planar_vo.synth.lens import SynthCamera
+from planar_vo.synth.mount import CameraMount, MountingError, params_yaml
+from planar_vo.synth.scenarios import SCENARIOS, render_scenario
+from planar_vo.synth.vehicle import RIGID, Suspension, Trajectory
+
+EPOCH_NS = 1_700_000_000 * 1_000_000_000
+IMAGE_TOPIC = '/camera/image_raw'
+COMPRESSED_TOPIC = '/camera/image_raw/compressed'
+INFO_TOPIC = '/camera/camera_info'
+ODOM_TOPIC = '/ground_truth/odom'
+OPTICAL_FRAME = 'camera_optical_frame'
+
+
+def _stamp(ts, ns: int):
+    return ts.types['builtin_interfaces/msg/Time'](sec=ns // 1_000_000_000,
+                                                   nanosec=ns % 1_000_000_000)
+
+
+def _header(ts, ns: int, frame: str):
+    return ts.types['std_msgs/msg/Header'](stamp=_stamp(ts, ns), frame_id=frame)
+
+
+def camera_info_msg(ts, cam: SynthCamera, ns: int):
+    """sensor_msgs/CameraInfo for ``cam`` (its distortion model, R = I, P = [K|0])."""
+    t = ts.types
+    k = cam.k_matrix()
+    p = np.zeros((3, 4))
+    p[:, :3] = k
+    roi = t['sensor_msgs/msg/RegionOfInterest'](x_offset=0, y_offset=0, height=0, width=0,
+                                                  do_rectify=False)
+    return t['sensor_msgs/msg/CameraInfo'](
+        header=_header(ts, ns, OPTICAL_FRAME), height=cam.height, width=cam.width,
+        distortion_model=cam.distortion_model, d=np.asarray(cam.dist, np.float64),
+        k=k.ravel(), r=np.eye(3).ravel(), p=p.ravel(), binning_x=0, binning_y=0, roi=roi)
+
+
+def image_msg(ts, img: np.ndarray, ns: int):
+    """sensor_msgs/Image mono8."""
+    h, w = img.shape
+    return ts.types['sensor_msgs/msg/Image'](
+        header=_header(ts, ns, OPTICAL_FRAME), height=h, width=w, encoding='mono8',
+        is_bigendian=0, step=w, data=np.ascontiguousarray(img).reshape(-1))
+
+
+def compressed_msg(ts, img: np.ndarray, ns: int, quality: int = 90):
+    """sensor_msgs/CompressedImage (JPEG, mono8)."""
+    ok, buf = cv2.imencode('.jpg', img, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise RuntimeError('JPEG encoding failed')
+    return ts.types['sensor_msgs/msg/CompressedImage'](
+        header=_header(ts, ns, OPTICAL_FRAME), format='mono8; jpeg compressed mono8',
+        data=buf.reshape(-1).astype(np.uint8))
+
+
+def odometry_msg(ts, traj: Trajectory, k: int, ns: int):
+    """nav_msgs/Odometry of base_link in odom (twist in base_link), zero covariance."""
+    t = ts.types
+    yaw = float(traj.yaw[k])
+    pose = t['geometry_msgs/msg/Pose'](
+        position=t['geometry_msgs/msg/Point'](x=float(traj.x[k]), y=float(traj.y[k]), z=0.0),
+        orientation=t['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=math.sin(yaw / 2),
+                                                      w=math.cos(yaw / 2)))
+    vec = t['geometry_msgs/msg/Vector3']
+    twist = t['geometry_msgs/msg/Twist'](linear=vec(x=float(traj.v[k]), y=0.0, z=0.0),
+                                         angular=vec(x=0.0, y=0.0, z=float(traj.omega[k])))
+    return t['nav_msgs/msg/Odometry'](
+        header=_header(ts, ns, 'odom'), child_frame_id='base_link',
+        pose=t['geometry_msgs/msg/PoseWithCovariance'](pose=pose, covariance=np.zeros(36)),
+        twist=t['geometry_msgs/msg/TwistWithCovariance'](twist=twist, covariance=np.zeros(36)))
+
+
+@dataclass
+class SynthResult:
+    """What :func:`generate_bag` wrote."""
+
+    path: Path
+    scenario: str
+    frames: int
+    rate: float
+    seed: int
+    camera: SynthCamera
+    mounting: CameraMount
+    trajectory: Trajectory = field(repr=False)
+    suspension: Suspension = RIGID
+    configured: CameraMount | None = None  # the mounting written to params_out
+    exposure: float = 0.0
+    obstacles: int = 0
+    seconds: float = 0.0
+
+
+def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: int = 0, *,
+                 rate: float = 30.0, camera: SynthCamera | None = None, mounting=None,
+                 suspension: Suspension | None = None, compressed: bool = False,
+                 jpeg_quality: int = 90, noise_sigma: float = 1.5, max_range: float = 60.0,
+                 obstacles: bool = True, storage_compression: bool = True,
+                 params_out=None, configured_error: MountingError | None = None,
+                 exposure: float = 0.0, progress: bool = False) -> SynthResult:
+    """Render a scenario and write the rosbag2 bag (MCAP, zstd chunks) at ``out_path``.
+
+    ``mounting``, ``suspension`` and ``exposure`` as in :func:`render_scenario`. The images
+    are rendered with ``mounting``; ``params_out`` gets it plus ``configured_error`` (the
+    mounting a user would have configured, to test calibration).
+    """
+    from planar_vo.bag import BagWriter, typestore
+
+    t0 = time.monotonic()
+    camera = camera or SynthCamera()
+    renderer, traj = render_scenario(scenario, frames, seed, rate=rate, camera=camera,
+                                     mounting=mounting, suspension=suspension,
+                                     noise_sigma=noise_sigma, max_range=max_range,
+                                     obstacles=obstacles, exposure=exposure)
+    mounting = renderer.mounting
+    configured = (configured_error or MountingError()).apply(mounting)
+    suspension = SCENARIOS[scenario].suspension if suspension is None else suspension
+    ts = typestore()
+    img_topic = COMPRESSED_TOPIC if compressed else IMAGE_TOPIC
+    img_type = 'sensor_msgs/msg/CompressedImage' if compressed else 'sensor_msgs/msg/Image'
+    bar = Progress(frames, 'planar_vo_synth', enabled=progress)
+    with BagWriter(out_path, compress=storage_compression) as bag:
+        bag.add_topic(img_topic, img_type)
+        bag.add_topic(INFO_TOPIC, 'sensor_msgs/msg/CameraInfo')
+        bag.add_topic(ODOM_TOPIC, 'nav_msgs/msg/Odometry')
+        for k in range(frames):
+            ns = EPOCH_NS + int(round(k * 1e9 / rate))
+            img = renderer.render_frame(traj, k)
+            msg = compressed_msg(ts, img, ns, jpeg_quality) if compressed \
+                else image_msg(ts, img, ns)
+            # CameraInfo first, as camera drivers do: a reader has the calibration in time.
+            bag.write(INFO_TOPIC, 'sensor_msgs/msg/CameraInfo', ns,
+                      camera_info_msg(ts, camera, ns))
+            bag.write(img_topic, img_type, ns, msg)
+            bag.write(ODOM_TOPIC, 'nav_msgs/msg/Odometry', ns, odometry_msg(ts, traj, k, ns))
+            bar.update(k + 1)
+    bar.close()
+    if params_out is not None:
+        text = params_yaml(configured)
+        if configured != mounting:
+            text += (f'# rendered with camera_x {mounting.x!r}, camera_y {mounting.y!r}, '
+                     f'camera_height {mounting.height!r},\n# camera_roll {mounting.roll!r}, '
+                     f'camera_pitch {mounting.pitch!r}, camera_yaw {mounting.yaw!r}\n')
+        Path(params_out).write_text(text)
+    return SynthResult(Path(out_path), scenario, frames, rate, seed, camera, mounting, traj,
+                       suspension, configured, exposure, len(renderer.boxes),
+                       time.monotonic() - t0)

@@ -1,0 +1,205 @@
+"""``planar_vo_synth``: the command line."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+from pathlib import Path
+
+from planar_vo.synth.bagfile import generate_bag
+from planar_vo.synth.lens import DISTORTION_DEFAULTS, SynthCamera
+from planar_vo.synth.mount import MountingError
+from planar_vo.synth.scenarios import SCENARIOS
+from planar_vo.synth.vehicle import Suspension
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit code 2
+        self.exit(2, f'planar_vo_synth: error: {message}\n')
+
+
+def _positive_int(s):
+    v = int(s)
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f'must be > 0, got {s}')
+    return v
+
+
+def _positive_float(s):
+    v = float(s)
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f'must be a finite number > 0, got {s}')
+    return v
+
+
+def _finite(s):
+    v = float(s)
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f'must be finite, got {s}')
+    return v
+
+
+def _nonneg(s):
+    v = float(s)
+    if not math.isfinite(v) or v < 0:
+        raise argparse.ArgumentTypeError(f'must be a finite number >= 0, got {s}')
+    return v
+
+
+def _mounting_error(s):
+    try:
+        return MountingError.parse(s)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Command-line interface of ``planar_vo_synth``."""
+    scen = '; '.join(f'{k}: {v.description}' for k, v in SCENARIOS.items())
+    p = _Parser(
+        prog='planar_vo_synth',
+        description='Render a monocular camera on a car driving over textured ground and write '
+                    'a rosbag2 bag (MCAP, Jazzy) with /camera/image_raw, /camera/camera_info '
+                    'and /ground_truth/odom (base_link on the rear axle, in odom).')
+    p.add_argument('out_bag', metavar='OUT_BAG', help='output bag directory (must not exist)')
+    p.add_argument('--scenario', default='default', metavar='NAME',
+                   help=f'driving scenario (default: default). {scen}')
+    p.add_argument('--frames', type=_positive_int, default=300,
+                   help='number of frames (default: 300)')
+    p.add_argument('--seed', type=int, default=0, help='random seed (default: 0)')
+    p.add_argument('--rate', type=_positive_float, default=30.0,
+                   help='frame rate in Hz (default: 30)')
+    p.add_argument('--width', type=_positive_int, default=640, help='image width (default 640)')
+    p.add_argument('--height', type=_positive_int, default=480,
+                   help='image height (default 480)')
+    p.add_argument('--fx', type=_positive_float, help='focal length x in px (default 460*W/640)')
+    p.add_argument('--fy', type=_positive_float, help='focal length y in px (default = fx)')
+    p.add_argument('--cx', type=_finite, help='principal point x (default W/2)')
+    p.add_argument('--cy', type=_finite, help='principal point y (default H/2)')
+    p.add_argument('--distortion-model', choices=sorted(DISTORTION_DEFAULTS),
+                   default='plumb_bob', help='lens model, as CameraInfo names it '
+                   '(default plumb_bob; equidistant is the OpenCV fisheye model)')
+    p.add_argument('--dist', type=_finite, nargs='+', metavar='D',
+                   help='distortion coefficients in CameraInfo order: 5 for plumb_bob '
+                        '(default -0.25 0.07 0.0005 -0.0005 0), 8 for rational_polynomial, '
+                        '4 for equidistant')
+    p.add_argument('--camera-x', type=_finite,
+                   help='camera x ahead of the rear axle, m (default 1.2)')
+    p.add_argument('--camera-y', type=_finite, help='camera y (left), m (default 0)')
+    p.add_argument('--camera-height', type=_positive_float,
+                   help='camera height above the ground, m (default 1.25)')
+    p.add_argument('--camera-roll', type=_finite,
+                   help="rad (default: the scenario's, 0 except car 0.5 deg, rough -0.6 deg)")
+    p.add_argument('--camera-pitch', type=_finite,
+                   help='rad, positive looks down (default 0.13963 = 8 deg)')
+    p.add_argument('--camera-yaw', type=_finite,
+                   help="rad, positive looks left (default: the scenario's, 0 except "
+                        'car -0.7 deg, rough 0.8 deg)')
+    p.add_argument('--body-pitch', type=_nonneg, metavar='DEG',
+                   help='sprung body: peak |pitch|, degrees; 60 %% follows the longitudinal '
+                        'acceleration (dive when braking, squat when accelerating), 40 %% is '
+                        "road vibration up to 3 Hz (default: the scenario's, 0 except car 1, "
+                        'rough 2)')
+    p.add_argument('--body-roll', type=_nonneg, metavar='DEG',
+                   help='sprung body: peak |roll|, degrees; 60 %% follows the lateral '
+                        'acceleration v*omega (lean out of turns), 40 %% is road vibration '
+                        "(default: the scenario's, 0 except car 0.6, rough 1.2)")
+    p.add_argument('--bounce', type=_nonneg, metavar='M',
+                   help="sprung body: peak height change, m (default: the scenario's, 0 "
+                        'except car 0.015, rough 0.03)')
+    p.add_argument('--configured-error', type=_mounting_error, metavar='NAME=VALUE,...',
+                   help='write to --params-out a mounting that is off the rendered one by '
+                        'this much, to test calibration: roll, pitch, yaw in degrees, x, y, '
+                        'height in metres, e.g. pitch=1.0,roll=-1.0,yaw=1.0,x=0.15 (the '
+                        'images still use the true mounting, noted in a comment)')
+    p.add_argument('--exposure', type=_nonneg, default=0.0, metavar='FRACTION',
+                   help='auto-exposure gain changes within +-FRACTION (e.g. 0.2): half a '
+                        'smooth drift, half steps every 1.5-4 s (default 0: off)')
+    p.add_argument('--noise', type=_nonneg, default=1.5,
+                   help='Gaussian image noise sigma, grey levels (default 1.5)')
+    p.add_argument('--max-range', type=_positive_float, default=60.0,
+                   help='ground beyond this distance (m) is haze/sky (default 60)')
+    p.add_argument('--no-obstacles', action='store_true', help='no boxes')
+    p.add_argument('--compressed', action='store_true',
+                   help='write JPEG sensor_msgs/CompressedImage on /camera/image_raw/compressed '
+                        'instead of raw Image')
+    p.add_argument('--jpeg-quality', type=_positive_int, default=90,
+                   help='JPEG quality with --compressed (default 90)')
+    p.add_argument('--no-storage-compression', action='store_true',
+                   help='do not zstd-compress the MCAP chunks')
+    p.add_argument('--params-out', metavar='YAML',
+                   help='also write a planar_vo params file with this mounting')
+    p.add_argument('--quiet', action='store_true', help='no progress output')
+    return p
+
+
+def main(argv=None) -> int:
+    """Entry point of ``planar_vo_synth``."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.scenario not in SCENARIOS:
+        parser.error(f'unknown scenario {args.scenario!r} (choose from {", ".join(SCENARIOS)})')
+    out = Path(args.out_bag)
+    if out.exists():
+        parser.error(f'output {out} already exists')
+    if not out.parent.is_dir():
+        parser.error(f'directory {out.parent} does not exist')
+    if args.params_out and not Path(args.params_out).parent.is_dir():
+        parser.error(f'directory of --params-out {args.params_out} does not exist')
+    if args.jpeg_quality > 100:
+        parser.error('--jpeg-quality must be in 1..100')
+    scenario = SCENARIOS[args.scenario]
+    mounting = scenario.mounting
+    given = {name: getattr(args, f'camera_{name}') for name in
+             ('x', 'y', 'height', 'roll', 'pitch', 'yaw')}
+    mounting = dataclasses.replace(mounting, **{k: v for k, v in given.items() if v is not None})
+    if not -1.2 < mounting.pitch < 1.5 or abs(mounting.roll) > 0.5:
+        parser.error('camera pitch/roll out of range: the camera must see the ground')
+    body = scenario.suspension
+    suspension = Suspension.degrees(
+        math.degrees(body.pitch) if args.body_pitch is None else args.body_pitch,
+        math.degrees(body.roll) if args.body_roll is None else args.body_roll,
+        body.bounce if args.bounce is None else args.bounce)
+    if max(suspension.pitch, suspension.roll) > math.radians(5.0):
+        parser.error('--body-pitch/--body-roll must be at most 5 degrees')
+    if suspension.bounce > 0.5 * mounting.height:
+        parser.error('--bounce must be at most half the camera height')
+    if args.exposure > 0.5:
+        parser.error('--exposure must be at most 0.5 (a gain within +-50 %)')
+    if args.configured_error and not args.params_out:
+        parser.error('--configured-error needs --params-out (it only changes that file)')
+    if args.configured_error and args.configured_error.apply(mounting).height <= 0:
+        parser.error('--configured-error: the configured camera height must stay > 0')
+    expected = len(DISTORTION_DEFAULTS[args.distortion_model])
+    if args.dist and len(args.dist) != expected:
+        parser.error(f'--dist: {args.distortion_model} takes {expected} coefficients, '
+                     f'not {len(args.dist)}')
+    camera = SynthCamera.scaled(args.width, args.height, fx=args.fx,
+                                fy=args.fy if args.fy is not None else args.fx,
+                                cx=args.cx, cy=args.cy,
+                                dist=tuple(args.dist) if args.dist else None,
+                                distortion_model=args.distortion_model)
+    from planar_vo.bag import BagError
+
+    try:
+        res = generate_bag(out, args.scenario, args.frames, args.seed, rate=args.rate,
+                           camera=camera, mounting=mounting, suspension=suspension,
+                           compressed=args.compressed,
+                           jpeg_quality=args.jpeg_quality, noise_sigma=args.noise,
+                           max_range=args.max_range, obstacles=not args.no_obstacles,
+                           storage_compression=not args.no_storage_compression,
+                           params_out=args.params_out, configured_error=args.configured_error,
+                           exposure=args.exposure, progress=not args.quiet)
+    except (BagError, OSError, ValueError) as err:
+        print(f'planar_vo_synth: error: {err}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print('planar_vo_synth: interrupted', file=sys.stderr)
+        return 130
+    if not args.quiet:
+        print(f'planar_vo_synth: wrote {res.path} ({res.frames} frames, scenario {res.scenario}, '
+              f'path {res.trajectory.length:.1f} m, {res.obstacles} boxes, '
+              f'{res.seconds:.1f} s)', file=sys.stderr)
+    return 0

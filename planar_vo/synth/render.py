@@ -1,0 +1,298 @@
+"""Rendering mono8 images of the ground and boxes seen from the mounted camera."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from planar_vo.synth.lens import SynthCamera
+from planar_vo.synth.mount import BODY_FROM_OPTICAL, DEFAULT_MOUNTING, CameraMount
+from planar_vo.synth.scene import Texture, make_ground_texture
+from planar_vo.synth.vehicle import Trajectory
+
+
+def exposure_gains(t: np.ndarray, fraction: float, seed: int) -> np.ndarray:
+    """Auto-exposure gain at times ``t`` (s), within 1 +- ``fraction``.
+
+    Half the range is a smooth drift (two slow sines, 0.05-0.3 Hz), half are steps, as an
+    auto-exposure loop makes: a new level every 1.5-4 s, reached from one frame to the next.
+    """
+    t = np.asarray(t, np.float64)
+    if fraction == 0:
+        return np.ones_like(t)
+    rng = np.random.default_rng([seed, 6])
+    smooth = (0.6 * np.sin(2 * math.pi * rng.uniform(0.05, 0.12) * t + rng.uniform(0, 7))
+              + 0.4 * np.sin(2 * math.pi * rng.uniform(0.12, 0.3) * t + rng.uniform(0, 7)))
+    switch = np.cumsum(rng.uniform(1.5, 4.0, int(t.max(initial=0) / 1.5) + 2))
+    levels = rng.uniform(-1.0, 1.0, switch.size + 1)
+    levels[0] = 0.0
+    steps = levels[np.searchsorted(switch, t, side='right')]
+    return 1.0 + 0.5 * fraction * (smooth + steps)
+
+
+def _rotate(rotation: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """``rotation @ vectors`` for (3, N) float32 vectors.
+
+    Written out: BLAS threads stall such thin products on a busy machine.
+    """
+    return np.stack([rotation[i, 0] * vectors[0] + rotation[i, 1] * vectors[1]
+                     + rotation[i, 2] * vectors[2] for i in range(3)])
+
+
+class Renderer:
+    """Render mono8 images of the ground (and boxes) for base_link poses in odom.
+
+    For the nominal (rigid) mount all per-pixel ground geometry is fixed in base_link (planar
+    motion), so it is computed once: ground hit points, mip levels, haze; per frame only a 2-D
+    rigid transform, the texture look-ups, the boxes and the noise. A camera moving on a
+    sprung body (:meth:`render_frame`, :meth:`render_pose`) gets its ground intersection per
+    frame, for every pixel whose nominal ray is less than ``max_tilt`` above the horizon;
+    the mip levels stay those of the nominal pose (the body moves by a degree or two).
+    """
+
+    def __init__(self, camera: SynthCamera | None = None, mounting=None,
+                 texture: Texture | None = None, boxes=(), *, max_range: float = 60.0,
+                 noise_sigma: float = 1.5, seed: int = 0, illumination: bool = True,
+                 haze: bool = True, max_tilt: float = math.radians(4.0),
+                 exposure: np.ndarray | None = None) -> None:
+        self.camera = camera or SynthCamera()
+        self.exposure = None if exposure is None else np.asarray(exposure, np.float64)
+        self.mounting = CameraMount.of(mounting or DEFAULT_MOUNTING)
+        self.texture = texture if texture is not None else make_ground_texture(seed)
+        self.boxes = list(boxes)
+        self.max_range = float(max_range)
+        self.noise_sigma = float(noise_sigma)
+        self.seed = seed
+        self.illumination = illumination
+        self.haze = haze
+        cam, mnt = self.camera, self.mounting
+        h, w = cam.height, cam.width
+        rays = cam.rays().reshape(-1, 3)
+        self.base_from_optical = mnt.rotation @ BODY_FROM_OPTICAL
+        d = rays @ self.base_from_optical.T
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        self.dirs = np.ascontiguousarray(d.T, np.float32)  # (3, N) unit rays in base_link
+        self.origin = mnt.position
+        cz = self.origin[2]
+        if cz <= 0:
+            raise ValueError('camera_height must be > 0')
+        with np.errstate(divide='ignore', invalid='ignore'):  # sky rays: t = inf, masked below
+            t = np.where(d[:, 2] < -1e-9, cz / -d[:, 2], np.inf)
+            gp = self.origin[None, :2] + t[:, None] * d[:, :2]
+        dist = np.hypot(gp[:, 0] - self.origin[0], gp[:, 1] - self.origin[1])
+        ground = np.isfinite(t) & (dist < max_range)
+        self.t_ground = np.where(ground, t, np.inf)
+        # Footprint of each pixel on the ground (finite differences of hit points).
+        g = np.where(ground[:, None], gp, np.nan).reshape(h, w, 2)
+        du = np.linalg.norm(np.gradient(g, axis=1), axis=2)
+        dv = np.linalg.norm(np.gradient(g, axis=0), axis=2)
+        foot = np.fmax(du, dv).ravel()
+        level = np.log2(np.maximum(np.nan_to_num(foot, nan=1e3) / self.texture.texel, 1e-9))
+        level = np.clip(level, 0.0, self.texture.nlevels - 1.0)
+        idx = np.flatnonzero(ground)
+        l0 = np.floor(level[idx]).astype(np.int64)
+        order = np.argsort(l0, kind='stable')
+        self.g_idx = idx[order]
+        self.g_l0 = l0[order]
+        self.g_frac = (level[idx] - l0)[order].astype(np.float32)
+        self.g_pts = gp[self.g_idx]
+        self.sky = self._sky(d[:, 2])
+        self.g_fog = self._haze(dist[self.g_idx])
+        # Vignetting (fixed per pixel).
+        uu, vv = np.meshgrid((np.arange(w) - cam.cx) / w, (np.arange(h) - cam.cy) / h)
+        self.vignette = (1.0 - 0.35 * (uu * uu + vv * vv)).ravel().astype(np.float32)
+        self.ground_mask = ground.reshape(h, w)
+        # Pixels a tilted camera may see the ground through, sorted by their nominal level.
+        unit_rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+        self._unit_rays = np.ascontiguousarray(unit_rays.T, np.float32)  # (3, N)
+        cand = np.flatnonzero(d[:, 2] < math.sin(max_tilt))
+        cand_level = np.where(ground[cand], level[cand], self.texture.nlevels - 1.0)
+        c0 = np.floor(cand_level).astype(np.int64)
+        order = np.argsort(c0, kind='stable')
+        self._c_idx = cand[order]
+        self._c_l0 = c0[order]
+        self._c_frac = (cand_level[order] - c0[order]).astype(np.float32)
+        self._c_rays = np.ascontiguousarray(self._unit_rays[:, self._c_idx])
+
+    @staticmethod
+    def _sky(up: np.ndarray) -> np.ndarray:
+        """Sky grey level from each unit ray's upward component (its elevation only)."""
+        elev = np.arcsin(np.clip(up, -1, 1))
+        return (196.0 + 45.0 * np.sin(np.clip(elev, 0, None)) ** 0.7
+                - 12.0 * np.clip(-elev, 0, 0.2) / 0.2).astype(np.float32)
+
+    def _haze(self, dist: np.ndarray) -> np.ndarray:
+        """Blend factor towards the sky for ground at ``dist`` m (1 = all sky)."""
+        if not self.haze:
+            return np.zeros(dist.shape, np.float32)
+        s = np.clip((dist - 0.5 * self.max_range) / (0.5 * self.max_range), 0, 1)
+        fog = 0.12 * (1 - np.exp(-dist / 30.0)) + 0.88 * s * s * (3 - 2 * s)
+        return np.clip(fog, 0, 1).astype(np.float32)
+
+    def ground_points_base(self) -> np.ndarray:
+        """(H, W, 2) ground hit point of every pixel in base_link (NaN = no ground)."""
+        out = np.full((self.camera.height * self.camera.width, 2), np.nan)
+        out[self.g_idx] = self.g_pts
+        return out.reshape(self.camera.height, self.camera.width, 2)
+
+    def gain(self, k: int) -> float:
+        """Global gain of frame k: slow, smooth illumination times the auto-exposure gain."""
+        exposure = 1.0 if self.exposure is None else float(self.exposure[k])
+        if not self.illumination:
+            return exposure
+        ph = (self.seed % 97) * 0.37
+        return (1.0 + 0.05 * math.sin(0.21 * k / 30.0 * 2 * math.pi + ph)
+                + 0.02 * math.sin(0.9 * k / 30.0 * 2 * math.pi + 2 * ph)) * exposure
+
+    def render(self, x: float, y: float, yaw: float, k: int = 0) -> np.ndarray:
+        """Render the image seen from base_link pose (x, y, yaw) in odom; frame index k."""
+        img = self.sky.copy()
+        c, s = math.cos(yaw), math.sin(yaw)
+        gx = x + c * self.g_pts[:, 0] - s * self.g_pts[:, 1]
+        gy = y + s * self.g_pts[:, 0] + c * self.g_pts[:, 1]
+        val = self.texture.sample_sorted(gx, gy, self.g_l0, self.g_frac)
+        sky = img[self.g_idx]
+        img[self.g_idx] = val + (sky - val) * self.g_fog
+        if self.boxes:
+            self._render_boxes(img, x, y, yaw, self.origin, self.dirs, self.t_ground.copy(),
+                               self.sky)
+        return self._finish(img, k)
+
+    def render_frame(self, traj: Trajectory, k: int) -> np.ndarray:
+        """Frame k of ``traj``: its base_link pose and, when set, its true camera pose."""
+        if traj.camera is None:
+            return self.render(traj.x[k], traj.y[k], traj.yaw[k], k)
+        return self.render_pose(traj.x[k], traj.y[k], traj.yaw[k], k,
+                                traj.camera.position[k], traj.camera.base_from_optical(k))
+
+    def render_pose(self, x: float, y: float, yaw: float, k: int, position: np.ndarray,
+                    base_from_optical: np.ndarray) -> np.ndarray:
+        """Render from base_link pose (x, y, yaw) with the camera moved on the body.
+
+        ``position`` (3,) and ``base_from_optical`` (3x3) are the camera's pose in base_link
+        at this frame.
+        """
+        if (np.array_equal(position, self.origin)
+                and np.array_equal(base_from_optical, self.base_from_optical)):
+            return self.render(x, y, yaw, k)  # the nominal pose: geometry precomputed
+        position = np.asarray(position, np.float64)
+        if position[2] <= 0:
+            raise ValueError('the camera must stay above the ground')
+        # float32 throughout: ground points within max_range of the camera, and the odom
+        # position wrapped to the texture's period (the texture repeats exactly).
+        rotation = np.asarray(base_from_optical, np.float32)
+        dirs = _rotate(rotation, self._unit_rays)
+        sky = self._sky_fast(dirs[2])
+        img = sky.copy()
+        d = _rotate(rotation, self._c_rays)
+        depression = -d[2]
+        down = depression > 1e-6
+        t = np.float32(position[2]) / np.where(down, depression, np.float32(1.0))
+        dist = t * np.hypot(d[0], d[1])
+        ground = down & (dist < self.max_range)
+        t[~ground] = 0.0  # no ground within range: sampled at the camera's foot, fog hides it
+        bx = np.float32(position[0]) + t * d[0]
+        by = np.float32(position[1]) + t * d[1]
+        c, s = np.float32(math.cos(yaw)), np.float32(math.sin(yaw))
+        period = self.texture.texel * self.texture.sizes[0]
+        val = self.texture.sample_sorted(np.float32(x % period) + c * bx - s * by,
+                                         np.float32(y % period) + s * bx + c * by,
+                                         self._c_l0, self._c_frac)
+        fog = np.where(ground, self._haze(dist), np.float32(1.0))
+        behind = img[self._c_idx]
+        img[self._c_idx] = val + (behind - val) * fog
+        if self.boxes:
+            depth = np.full(img.shape[0], np.inf)
+            depth[self._c_idx[ground]] = t[ground]
+            self._render_boxes(img, x, y, yaw, position, dirs, depth, sky)
+        return self._finish(img, k)
+
+    @staticmethod
+    def _sky_fast(up: np.ndarray) -> np.ndarray:
+        """:meth:`_sky` in float32 arithmetic (``sin(arcsin(up)) = up``)."""
+        return (np.float32(196.0) + np.float32(45.0) * np.maximum(up, 0) ** np.float32(0.7)
+                - np.float32(60.0) * np.clip(-np.arcsin(np.clip(up, -1, 1)), 0, 0.2))
+
+    def _finish(self, img: np.ndarray, k: int) -> np.ndarray:
+        """Vignetting, illumination and sensor noise; mono8 (H, W)."""
+        img *= self.vignette * self.gain(k)
+        if self.noise_sigma > 0:
+            rng = np.random.default_rng([self.seed, 4, k])
+            img += rng.standard_normal(img.shape[0], np.float32) * np.float32(self.noise_sigma)
+        cam = self.camera
+        return np.clip(img + 0.5, 0, 255).astype(np.uint8).reshape(cam.height, cam.width)
+
+    def _render_boxes(self, img: np.ndarray, x: float, y: float, yaw: float,
+                      origin: np.ndarray, dirs: np.ndarray, depth: np.ndarray,
+                      sky: np.ndarray) -> None:
+        """Draw the boxes over ``img`` seen from base_link pose (x, y, yaw).
+
+        ``origin`` and the unit pixel rays ``dirs`` (3, N) are in base_link; ``depth`` is the
+        ground's ray length per pixel, ``sky`` the sky behind the haze.
+        """
+        c, s = math.cos(yaw), math.sin(yaw)
+        ox, oy, oz = origin
+        cwx, cwy = x + c * ox - s * oy, y + s * ox + c * oy  # camera centre in odom
+        cands = []
+        for b in self.boxes:
+            dx, dy = b.x - cwx, b.y - cwy
+            r = math.sqrt(b.half_x ** 2 + b.half_y ** 2 + (b.height / 2) ** 2)
+            dist = math.sqrt(dx * dx + dy * dy + (b.height / 2 - oz) ** 2)
+            if dist - r > self.max_range:
+                continue
+            # Direction to the centre in base_link.
+            vb = np.array([c * dx + s * dy, -s * dx + c * dy, b.height / 2 - oz]) / dist
+            cands.append((dist, b, vb, r))
+        cands.sort(key=lambda e: e[0])
+        for dist, b, vb, r in cands:
+            if dist > r * 1.001:
+                cos_th = math.cos(math.asin(r / dist))
+                vb32 = vb.astype(np.float32)
+                sel = np.flatnonzero(dirs[0] * vb32[0] + dirs[1] * vb32[1] + dirs[2] * vb32[2]
+                                     > cos_th)
+            else:
+                sel = np.arange(dirs.shape[1])
+            if sel.size == 0:
+                continue
+            d = dirs[:, sel].T.astype(np.float64)
+            a = yaw - b.yaw  # base → box rotation
+            ca, sa = math.cos(a), math.sin(a)
+            dlx = ca * d[:, 0] - sa * d[:, 1]
+            dly = sa * d[:, 0] + ca * d[:, 1]
+            dlz = d[:, 2]
+            cb, sb = math.cos(b.yaw), math.sin(b.yaw)
+            olx = cb * (cwx - b.x) + sb * (cwy - b.y)
+            oly = -sb * (cwx - b.x) + cb * (cwy - b.y)
+            olz = oz
+            with np.errstate(divide='ignore', invalid='ignore'):
+                tx1, tx2 = (-b.half_x - olx) / dlx, (b.half_x - olx) / dlx
+                ty1, ty2 = (-b.half_y - oly) / dly, (b.half_y - oly) / dly
+                tz1, tz2 = (0.0 - olz) / dlz, (b.height - olz) / dlz
+            tnx, tfx = np.fmin(tx1, tx2), np.fmax(tx1, tx2)
+            tny, tfy = np.fmin(ty1, ty2), np.fmax(ty1, ty2)
+            tnz, tfz = np.fmin(tz1, tz2), np.fmax(tz1, tz2)
+            tnear = np.fmax(np.fmax(tnx, tny), tnz)
+            tfar = np.fmin(np.fmin(tfx, tfy), tfz)
+            hit = (tnear <= tfar) & (tnear > 1e-6) & (tnear < depth[sel])
+            if not hit.any():
+                continue
+            tn = tnear[hit]
+            px = olx + tn * dlx[hit]
+            py = oly + tn * dly[hit]
+            pz = olz + tn * dlz[hit]
+            face_x = tnx[hit] >= np.fmax(tny[hit], tnz[hit])
+            face_z = ~face_x & (tnz[hit] >= tny[hit])
+            tu = np.where(face_x, py, px)
+            tv = np.where(face_z, py, pz)
+            shade = np.where(face_x, np.where(px > 0, 0.85, 1.1),
+                             np.where(face_z, 1.2, np.where(py > 0, 0.95, 0.75)))
+            level = np.log2(np.maximum(tn / self.camera.fx / self.texture.texel, 1e-9))
+            tex = self.texture.sample(tu + b.tex_x, tv + b.tex_y, level)
+            idx = sel[hit]
+            val = (b.albedo * shade * (tex - 110.0) * 1.3 + 100.0 + b.offset) * shade
+            rr = tn
+            fs = np.clip((rr - 0.5 * self.max_range) / (0.5 * self.max_range), 0, 1)
+            fog = 0.12 * (1 - np.exp(-rr / 30.0)) + 0.88 * fs * fs * (3 - 2 * fs)
+            img[idx] = val + (img[idx] * 0 + sky[idx] - val) * fog
+            depth[idx] = tn

@@ -1,0 +1,228 @@
+"""The vehicle: a kinematic bicycle model at the rear axle and a sprung body on it.
+
+base_link (REP-103: x forward, y left, z up) is on the rear axle, on the ground; the
+trajectory is its ground truth. The sprung body pitches, rolls and bounces under the
+camera; that motion is kept apart (``Trajectory.body``, ``Trajectory.camera``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from planar_vo.synth.mount import BODY_FROM_OPTICAL, CameraMount, rotation_rpy, rpy_of
+
+if TYPE_CHECKING:
+    from planar_vo.synth.scenarios import Scenario
+
+WHEELBASE = 2.7
+
+
+@dataclass(frozen=True)
+class Suspension:
+    """A sprung body carrying the camera: peak body motion and where the body rotates.
+
+    ``pitch`` and ``roll`` (rad) bound |body pitch| and |body roll|: a share
+    ``inertial_share`` of each follows the acceleration as ``tanh(a / reference)`` (pitch
+    the longitudinal one over ``accel_ref``: dive when braking, squat when accelerating;
+    roll the lateral one ``v * omega`` over ``lateral_ref``: lean out of turns), the rest is
+    road vibration (three sines of 0.6-3 Hz). ``bounce`` (m) bounds the body's height change
+    (road only). A drive of the ``car`` scenario reaches 60-90 % of the bounds. The body
+    rotates about its centre of mass at (``pivot_x``, 0, ``pivot_z``) in base_link.
+    """
+
+    pitch: float = 0.0
+    roll: float = 0.0
+    bounce: float = 0.0
+    pivot_x: float = 1.35
+    pivot_z: float = 0.55
+    inertial_share: float = 0.6
+    accel_ref: float = 1.5  # m/s^2: longitudinal acceleration giving tanh(1) of the share
+    lateral_ref: float = 1.0  # m/s^2: the same for the lateral acceleration
+
+    @classmethod
+    def degrees(cls, pitch: float, roll: float, bounce: float, **kw) -> Suspension:
+        """Suspension with pitch and roll amplitudes in degrees, bounce in metres."""
+        return cls(math.radians(pitch), math.radians(roll), bounce, **kw)
+
+    @property
+    def rigid(self) -> bool:
+        """True when the body does not move on its springs."""
+        return self.pitch == 0.0 and self.roll == 0.0 and self.bounce == 0.0
+
+
+RIGID = Suspension()
+
+
+@dataclass(frozen=True)
+class BodyMotion:
+    """The sprung body's attitude and height change at each frame, relative to the ground."""
+
+    roll: np.ndarray  # rad, positive = right side down (lean to the right)
+    pitch: np.ndarray  # rad, positive = nose down (dive)
+    bounce: np.ndarray  # m, positive = body up
+
+
+@dataclass(frozen=True)
+class CameraPoses:
+    """True pose of the camera body frame (x forward, y left, z up) in base_link per frame.
+
+    base_link is on the ground, so these are the camera's attitude and height to the ground.
+    """
+
+    position: np.ndarray  # (N, 3) m; position[:, 2] is the height above the ground
+    rotation: np.ndarray  # (N, 3, 3) base_link <- camera body frame
+
+    @property
+    def height(self) -> np.ndarray:
+        """(N,) camera height above the ground, m."""
+        return self.position[:, 2]
+
+    @property
+    def rpy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(roll, pitch, yaw) (N,) each, rad, in the convention of :func:`rotation_rpy`."""
+        return rpy_of(self.rotation)
+
+    def base_from_optical(self, k: int) -> np.ndarray:
+        """Rotation base_link <- optical frame at frame k, 3x3."""
+        return self.rotation[k] @ BODY_FROM_OPTICAL
+
+
+def road_vibration(rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
+    """Road-excited body motion in [-1, 1]: three sines of 0.6-3 Hz with random phases."""
+    bands, weights = ((0.6, 1.2), (1.2, 2.0), (2.0, 3.0)), (0.5, 0.3, 0.2)
+    out = np.zeros_like(t)
+    for (lo, hi), w in zip(bands, weights, strict=True):
+        out += w * np.sin(2 * math.pi * rng.uniform(lo, hi) * t + rng.uniform(0, 2 * math.pi))
+    return out
+
+
+def body_motion(traj: Trajectory, suspension: Suspension, seed: int) -> BodyMotion:
+    """Body pitch, roll and bounce at each frame of ``traj`` (see :class:`Suspension`)."""
+    rng = np.random.default_rng([seed, 5])
+    share = suspension.inertial_share
+    road = [road_vibration(rng, traj.t) for _ in range(3)]
+    a_long = traj.accel
+    a_lat = traj.v * traj.omega  # centripetal, towards the centre of the turn
+    pitch = suspension.pitch * (-share * np.tanh(a_long / suspension.accel_ref)
+                                + (1.0 - share) * road[0])
+    roll = suspension.roll * (share * np.tanh(a_lat / suspension.lateral_ref)
+                              + (1.0 - share) * road[1])
+    return BodyMotion(roll, pitch, suspension.bounce * road[2])
+
+
+def camera_poses(mount: CameraMount, body: BodyMotion, suspension: Suspension) -> CameraPoses:
+    """The camera pose of every frame: the mount carried by the body about its pivot."""
+    n = body.pitch.shape[0]
+    pivot = np.array([suspension.pivot_x, 0.0, suspension.pivot_z])
+    lever = mount.position - pivot
+    position = np.empty((n, 3))
+    rotation = np.empty((n, 3, 3))
+    mount_rotation = mount.rotation
+    for k in range(n):
+        body_rotation = rotation_rpy(body.roll[k], body.pitch[k], 0.0)
+        # mount + (R - I) lever: exactly the mount when the body is at rest
+        position[k] = mount.position + (body_rotation - np.eye(3)) @ lever
+        position[k, 2] += body.bounce[k]
+        rotation[k] = body_rotation @ mount_rotation
+    return CameraPoses(position, rotation)
+
+
+@dataclass
+class Trajectory:
+    """Ground truth at each frame: base_link pose in odom and twist in base_link.
+
+    The twist (``v``, ``omega``) is the instantaneous one at each frame's stamp. ``body`` and
+    ``camera`` (set by :func:`render_scenario`) are the sprung body's motion and the true
+    camera pose in base_link at each frame; they are not part of the ground-truth odometry.
+    """
+
+    t: np.ndarray  # s since the first frame
+    x: np.ndarray
+    y: np.ndarray
+    yaw: np.ndarray
+    v: np.ndarray  # forward speed (m/s)
+    omega: np.ndarray  # yaw rate (rad/s)
+    steer: np.ndarray
+    wheelbase: float = WHEELBASE
+    accel: np.ndarray | None = None  # dv/dt (m/s^2)
+    body: BodyMotion | None = None
+    camera: CameraPoses | None = None
+
+    @property
+    def length(self) -> float:
+        """Path length (m) from the first to the last frame."""
+        return float(np.hypot(np.diff(self.x), np.diff(self.y)).sum())
+
+
+def mount_camera(traj: Trajectory, mount, suspension: Suspension = RIGID,
+                 seed: int = 0) -> Trajectory:
+    """``traj`` with the body motion and the true camera pose of every frame filled in."""
+    body = body_motion(traj, suspension, seed)
+    return dataclasses.replace(traj, body=body,
+                               camera=camera_poses(CameraMount.of(mount), body, suspension))
+
+
+def _smooth_profile(rng, duration, lo, hi, knot_dt, symmetric=False):
+    """C1 profile: random knots joined by smoothstep; returns f(t)."""
+    times = [0.0]
+    while times[-1] < duration + 1.0:
+        times.append(times[-1] + rng.uniform(*knot_dt))
+    n = len(times)
+    if symmetric:
+        vals = rng.uniform(-hi, hi, n)
+        vals[0] = 0.0
+    else:
+        vals = rng.uniform(lo, hi, n)
+    times_a = np.asarray(times)
+
+    def f(t):
+        t = np.asarray(t, np.float64)
+        i = np.clip(np.searchsorted(times_a, t, side='right') - 1, 0, n - 2)
+        s = np.clip((t - times_a[i]) / (times_a[i + 1] - times_a[i]), 0.0, 1.0)
+        s = s * s * (3.0 - 2.0 * s)
+        return vals[i] + (vals[i + 1] - vals[i]) * s
+
+    return f
+
+
+def make_trajectory(scenario: Scenario, frames: int, rate: float, seed: int,
+                    wheelbase: float = WHEELBASE, substeps: int = 20) -> Trajectory:
+    """Integrate the bicycle model (RK4 on fine sub-steps) and sample it at the frames."""
+    rng = np.random.default_rng([seed, 1])
+    dt = 1.0 / rate
+    duration = (frames - 1) * dt
+    speed = _smooth_profile(rng, duration, *scenario.speed, scenario.knot_dt)
+    steer = _smooth_profile(rng, duration, 0.0, scenario.steer, scenario.knot_dt, True)
+
+    def deriv(t, yaw):
+        v = speed(t)
+        return v * math.cos(yaw), v * math.sin(yaw), v * math.tan(steer(t)) / wheelbase
+
+    x = np.zeros(frames)
+    y = np.zeros(frames)
+    yaw = np.zeros(frames)
+    h = dt / substeps
+    cx = cy = cyaw = 0.0
+    for k in range(1, frames):
+        t0 = (k - 1) * dt
+        for j in range(substeps):
+            t = t0 + j * h
+            a = deriv(t, cyaw)
+            b = deriv(t + h / 2, cyaw + h / 2 * a[2])
+            c = deriv(t + h / 2, cyaw + h / 2 * b[2])
+            d = deriv(t + h, cyaw + h * c[2])
+            cx += h / 6 * (a[0] + 2 * b[0] + 2 * c[0] + d[0])
+            cy += h / 6 * (a[1] + 2 * b[1] + 2 * c[1] + d[1])
+            cyaw += h / 6 * (a[2] + 2 * b[2] + 2 * c[2] + d[2])
+        x[k], y[k], yaw[k] = cx, cy, cyaw
+    t = np.arange(frames) * dt
+    v = speed(t)
+    st = steer(t)
+    h = 1e-5  # the profiles are C1: a central difference gives the acceleration
+    accel = (speed(t + h) - speed(t - h)) / (2 * h)
+    return Trajectory(t, x, y, yaw, v, v * np.tan(st) / wheelbase, st, wheelbase, accel)
