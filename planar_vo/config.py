@@ -92,7 +92,8 @@ SCHEMA: tuple[Param, ...] = (
           1e-5, 0.5),
     Param('min_distance', 8.0, 'Minimum distance between features, px.', 1.0, 100.0),
     Param('klt_window', 15, 'Lucas-Kanade window size, px (odd).', 5, 101),
-    Param('klt_levels', 3, 'Pyramid levels above the full image for KLT.', 0, 8),
+    Param('klt_levels', 3, 'Pyramid levels above the full image for KLT when no motion '
+          'predicts where tracks went (from a prediction it uses at most 1).', 0, 8),
     Param('fb_threshold', 0.5, 'Forward-backward KLT check: max round-trip error, px.',
           0.05, 10.0),
     Param('horizon_margin', math.radians(12.0),

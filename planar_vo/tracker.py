@@ -5,6 +5,13 @@ was estimated), so a frame that cannot be estimated does not lose motion: the ne
 is matched against the same reference while its tracks survive. Tracks also carry their
 undistorted (normalized) coordinates, so each position is undistorted once, when it is
 first measured, not again every time it is used.
+
+Cost (measured, see README "Speed"): KLT's work grows with tracks x window area x levels.
+KLT starts from the predicted position when there is one, so a shallow pyramid reaches it
+(forward and back: 1 level instead of 3 costs about a third less, same accuracy).
+Corners are detected only inside the ground mask's bounding box.
+(Reusing each image's pyramid between the two KLT calls would save at most ~0.3 ms a frame,
+and OpenCV's Python binding cannot pass a pyramid to calcOpticalFlowPyrLK anyway.)
 """
 
 from __future__ import annotations
@@ -15,6 +22,10 @@ import cv2
 import numpy as np
 
 __all__ = ['Tracker']
+
+# When a prediction loses more than this share of the tracks, the motion was not the one
+# predicted (a jolt, a dropped frame): the lost ones are tracked again on the full pyramid.
+_RETRY_LOST = 0.5
 
 
 class Tracker:
@@ -28,6 +39,7 @@ class Tracker:
         min_distance: float = 8.0,
         window: int = 15,
         levels: int = 3,
+        predicted_levels: int = 1,
         fb_threshold: float = 0.5,
         grid: tuple[int, int] = (4, 8),
         normalize: Callable[[np.ndarray], np.ndarray] | None = None,
@@ -37,12 +49,13 @@ class Tracker:
         self.min_distance = min_distance
         self.fb_threshold = fb_threshold
         self.grid = grid
+        self.levels, self.predicted_levels = levels, min(predicted_levels, levels)
         self._lk = {
             'winSize': (window | 1, window | 1),
-            'maxLevel': levels,
             'criteria': (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01),
         }
         self._image: np.ndarray | None = None
+        self._mask_box: tuple | None = None  # (mask, its bounding box)
         self._normalize = normalize or _as_float64
         self.reset()
 
@@ -67,29 +80,51 @@ class Tracker:
 
         Args:
             predicted: (N, 2) where each track is expected (from the motion so far); KLT
-                starts there, so fast motion and skipped frames stay within its reach.
+                starts there with ``predicted_levels`` pyramid levels, so fast motion and
+                skipped frames stay within its reach. Without it KLT uses ``levels``, and
+                so do the tracks a prediction loses when it loses most of them (a jolt the
+                motion did not foresee).
         """
         if self._image is not None and len(self.points):
             prev = self.points.reshape(-1, 1, 2)
             if predicted is None:
-                cur, ok, _ = cv2.calcOpticalFlowPyrLK(self._image, gray, prev, None, **self._lk)
+                cur, keep = self._follow(gray, prev, None, self.levels)
             else:
-                cur, ok, _ = cv2.calcOpticalFlowPyrLK(
-                    self._image, gray, prev, predicted.reshape(-1, 1, 2).astype(np.float32),
-                    flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk)
-            back, ok_back, _ = cv2.calcOpticalFlowPyrLK(
-                gray, self._image, cur, prev.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-                **self._lk)
-            fb = np.linalg.norm((back - prev).reshape(-1, 2), axis=1)
-            h, w = gray.shape
-            cur = cur.reshape(-1, 2)
-            keep = ((ok.ravel() == 1) & (ok_back.ravel() == 1) & (fb < self.fb_threshold)
-                    & (cur[:, 0] >= 0) & (cur[:, 1] >= 0) & (cur[:, 0] <= w - 1)
-                    & (cur[:, 1] <= h - 1))
+                cur, keep = self._follow(gray, prev, predicted, self.predicted_levels)
+                lost = ~keep
+                if np.count_nonzero(lost) > _RETRY_LOST * len(keep):
+                    cur[lost], keep[lost] = self._follow(gray, prev[lost], None, self.levels)
             self.points, self.reference = cur[keep], self.reference[keep]
             self.reference_normalized = self.reference_normalized[keep]
             self.points_normalized = self._normalize(self.points)
         self._image = gray
+
+    def _follow(self, gray: np.ndarray, prev: np.ndarray, start: np.ndarray | None,
+                levels: int) -> tuple[np.ndarray, np.ndarray]:
+        """KLT of ``prev`` (N, 1, 2) into ``gray`` from ``start`` (N, 2) or from ``prev``.
+
+        Returns:
+            (positions (N, 2), which passed the forward-backward check (N,) bool).
+        """
+        if start is None:
+            cur, ok, _ = cv2.calcOpticalFlowPyrLK(
+                self._image, gray, prev, None, maxLevel=levels, **self._lk)
+        else:
+            cur, ok, _ = cv2.calcOpticalFlowPyrLK(
+                self._image, gray, prev, start.reshape(-1, 1, 2).astype(np.float32),
+                flags=cv2.OPTFLOW_USE_INITIAL_FLOW, maxLevel=levels, **self._lk)
+        # The check starts where the track came from, on as many levels as the forward pass
+        # (fewer let more false tracks through when the motion is large).
+        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(
+            gray, self._image, cur, prev.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+            maxLevel=levels, **self._lk)
+        fb = np.linalg.norm((back - prev).reshape(-1, 2), axis=1)
+        h, w = gray.shape
+        cur = cur.reshape(-1, 2)
+        keep = ((ok.ravel() == 1) & (ok_back.ravel() == 1) & (fb < self.fb_threshold)
+                & (cur[:, 0] >= 0) & (cur[:, 1] >= 0) & (cur[:, 0] <= w - 1)
+                & (cur[:, 1] <= h - 1))
+        return cur, keep
 
     def correspondences(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(indices, reference points, current points) of tracks seen in the reference."""
@@ -121,17 +156,17 @@ class Tracker:
         deficit = self.max_features - len(self.points)
         if self._image is None or deficit < 0.1 * self.max_features:
             return 0
-        free = mask.copy()
-        for x, y in self.points.astype(int):
-            cv2.circle(free, (int(x), int(y)), int(self.min_distance), 0, -1)
-        # Detect only inside the mask's bounding box: the sky is most of a level camera's view.
-        x0, y0, w, h = cv2.boundingRect(mask)
+        x0, y0, w, h = self._detection_box(mask)
         if w == 0 or h == 0:
             return 0
+        free = mask[y0:y0 + h, x0:x0 + w].copy()  # no track within min_distance of a new one
+        radius = int(self.min_distance)
+        for x, y in (self.points.astype(np.int32) - [x0, y0]).tolist():
+            cv2.circle(free, (x, y), radius, 0, -1)
         corners = cv2.goodFeaturesToTrack(
             self._image[y0:y0 + h, x0:x0 + w], maxCorners=3 * deficit,
-            qualityLevel=self.quality_level, minDistance=self.min_distance,
-            mask=free[y0:y0 + h, x0:x0 + w], blockSize=5)
+            qualityLevel=self.quality_level, minDistance=self.min_distance, mask=free,
+            blockSize=5)
         if corners is None:
             return 0
         corners = corners.reshape(-1, 2) + np.float32([x0, y0])
@@ -150,16 +185,29 @@ class Tracker:
         self.reference_normalized = np.concatenate([self.reference_normalized, ref_normalized])
         return len(new)
 
+    def _detection_box(self, mask: np.ndarray) -> tuple[int, int, int, int]:
+        """(x, y, w, h) around ``mask``, computed once per mask.
+
+        The sky is most of a level camera's view: detecting only in this box is what keeps
+        detection cheap. (Narrowing it to the grid cells short of tracks gained nothing:
+        on bags/default they span the whole box in every frame.)
+        """
+        if self._mask_box is None or self._mask_box[0] is not mask:
+            self._mask_box = (mask, cv2.boundingRect(mask))
+        return self._mask_box[1]
+
+    def _cells(self, points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """Grid cell index (N,) of each point (N, 2)."""
+        rows, cols = self.grid
+        h, w = shape
+        return (np.minimum(points[:, 1] * rows // h, rows - 1) * cols
+                + np.minimum(points[:, 0] * cols // w, cols - 1)).astype(int)
+
     def _spread(self, corners: np.ndarray, shape: tuple[int, int], deficit: int) -> np.ndarray:
         """Take the best corners cell by cell so no cell holds more than its share."""
         rows, cols = self.grid
-        h, w = shape
-        cell = (np.minimum(corners[:, 1] * rows // h, rows - 1) * cols
-                + np.minimum(corners[:, 0] * cols // w, cols - 1)).astype(int)
-        occupied = np.bincount(
-            (np.minimum(self.points[:, 1] * rows // h, rows - 1) * cols
-             + np.minimum(self.points[:, 0] * cols // w, cols - 1)).astype(int),
-            minlength=rows * cols)
+        cell = self._cells(corners, shape)
+        occupied = np.bincount(self._cells(self.points, shape), minlength=rows * cols)
         share = int(np.ceil(self.max_features / max(np.count_nonzero(np.bincount(
             cell, minlength=rows * cols) + occupied), 1)))
         taken = []

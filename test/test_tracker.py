@@ -91,3 +91,47 @@ def test_normalized_coordinates_follow_every_track_operation():
     check(tracker)
     tracker.set_normalize(lambda pixels: np.asarray(pixels, np.float64) / 100.0)
     np.testing.assert_allclose(tracker.points_normalized, tracker.points / 100.0)
+
+
+def test_the_shallow_pyramid_from_a_prediction_keeps_the_full_pyramids_tracks():
+    """The fast path (KLT from a predicted start on 1 pyramid level, forward and back)
+    keeps the tracks that 3 levels both ways keep, and both land on the true shift."""
+    img = texture(4)
+    mask = np.full_like(img, 255)
+    shift = np.array([25.0, 10.0])  # beyond what one level reaches from the old position
+    fast, full = Tracker(max_features=300), Tracker(max_features=300, predicted_levels=3)
+    for tracker in (fast, full):
+        tracker.track(img)
+        tracker.replenish(mask, is_reference=True)
+    np.testing.assert_array_equal(fast.points, full.points)
+    predicted = fast.points + shift + [-0.4, 0.3]  # a prediction off by half a pixel
+    for tracker in (fast, full):
+        tracker.track(shifted(img, *shift), predicted)
+    assert len(fast) >= 0.97 * len(full) and len(full) > 250
+    for tracker in (fast, full):
+        _, ref, cur = tracker.correspondences()
+        error = np.abs(cur - ref - shift).max(axis=1)
+        assert np.median(error) < 0.02 and np.percentile(error, 95) < 0.1
+    common, in_fast, in_full = np.intersect1d(fast.reference[:, 0] * 1e4 + fast.reference[:, 1],
+                                              full.reference[:, 0] * 1e4 + full.reference[:, 1],
+                                              return_indices=True)
+    assert len(common) >= 0.97 * len(full)
+    np.testing.assert_allclose(fast.points[in_fast], full.points[in_full], atol=0.01)
+
+
+def test_tracks_a_wrong_prediction_loses_are_tracked_again_on_the_full_pyramid():
+    """A jolt the motion did not predict: one level from the prediction reaches none of
+    the true positions, so the lost tracks are followed again from their old positions."""
+    img = texture(5)
+    mask = np.full_like(img, 255)
+    shift = np.array([25.0, 10.0])
+    correct = {}
+    for name, predict in (('no prediction', False), ('wrong prediction', True)):
+        tracker = Tracker(max_features=300)
+        tracker.track(img)
+        tracker.replenish(mask, is_reference=True)
+        tracker.track(shifted(img, *shift), tracker.points.copy() if predict else None)
+        _, ref, cur = tracker.correspondences()
+        correct[name] = np.count_nonzero(np.abs(cur - ref - shift).max(axis=1) < 0.1)
+    assert correct['no prediction'] > 100
+    assert correct['wrong prediction'] > 0.7 * correct['no prediction']
