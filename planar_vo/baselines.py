@@ -5,7 +5,8 @@
 - 5-point: ``cv2.findEssentialMat`` (RANSAC) + ``cv2.recoverPose``; no scale.
 
 Both take normalized image coordinates of the real (tilted) camera, so they see exactly what
-the planar solvers see.
+the planar solvers see. :class:`OpenCVReference` is the whole textbook pipeline around the
+4-point way (detect, track, check, estimate), the yardstick for planar_vo's cost per frame.
 """
 
 from __future__ import annotations
@@ -13,10 +14,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from planar_vo.camera import Mounting
+from planar_vo.camera import CameraModel, Mounting
 from planar_vo.ransac import PoseEstimationError
 
-__all__ = ['homography_motion', 'essential_motion']
+__all__ = ['homography_motion', 'essential_motion', 'OpenCVReference']
 
 
 def _planar_base_motion(R: np.ndarray, t: np.ndarray, mounting: Mounting) -> np.ndarray:
@@ -63,3 +64,56 @@ def essential_motion(m1: np.ndarray, m2: np.ndarray, mounting: Mounting, *,
         raise PoseEstimationError('findEssentialMat found no essential matrix')
     _, R, t, mask = cv2.recoverPose(E[:3], m1, m2, np.eye(3), mask=mask)
     return _planar_base_motion(R, t.ravel(), mounting), mask.ravel().astype(bool)
+
+
+class OpenCVReference:
+    """The plain OpenCV visual odometry a user would write first, as a yardstick for speed.
+
+    goodFeaturesToTrack over the whole image, 21x21 3-level pyramidal LK forward and back
+    (the classic monocular VO settings), tracks whose round trip misses by more than
+    ``fb_threshold`` dropped, then findHomography + decomposeHomographyMat on the undistorted
+    survivors. It keeps the same feature budget as planar_vo's tracker and tops it up by the
+    same rule (when 10 % or more are missing), so both do the same amount of work per frame.
+    """
+
+    _LK = {'winSize': (21, 21), 'maxLevel': 3,
+           'criteria': (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)}
+
+    def __init__(self, camera: CameraModel, mounting: Mounting, *, max_features: int = 400,
+                 quality_level: float = 0.005, min_distance: float = 8.0,
+                 fb_threshold: float = 0.5, inlier_threshold_px: float = 1.0) -> None:
+        self.camera, self.mounting = camera, mounting
+        self.max_features, self.quality_level = max_features, quality_level
+        self.min_distance, self.fb_threshold = min_distance, fb_threshold
+        self.threshold = inlier_threshold_px / camera.focal_px
+        self._previous: np.ndarray | None = None
+        self.points = np.zeros((0, 1, 2), np.float32)
+
+    def process(self, gray: np.ndarray) -> np.ndarray | None:
+        """Motion ``[x, y, yaw]`` of base_link since the previous image, None if none."""
+        motion = None
+        if self._previous is not None and len(self.points):
+            cur, ok, _ = cv2.calcOpticalFlowPyrLK(self._previous, gray, self.points, None,
+                                                  **self._LK)
+            back, ok_back, _ = cv2.calcOpticalFlowPyrLK(gray, self._previous, cur, None,
+                                                        **self._LK)
+            keep = ((ok.ravel() == 1) & (ok_back.ravel() == 1)
+                    & (np.linalg.norm((back - self.points).reshape(-1, 2), axis=1)
+                       < self.fb_threshold))
+            try:
+                motion, _ = homography_motion(
+                    self.camera.normalize(self.points[keep]), self.camera.normalize(cur[keep]),
+                    self.mounting, threshold=self.threshold)
+            except PoseEstimationError:
+                motion = None
+            self.points = cur[keep]
+        if len(self.points) <= 0.9 * self.max_features:
+            free = np.full(gray.shape, 255, np.uint8)
+            for x, y in self.points.reshape(-1, 2):
+                cv2.circle(free, (int(x), int(y)), int(self.min_distance), 0, -1)
+            new = cv2.goodFeaturesToTrack(gray, self.max_features - len(self.points),
+                                          self.quality_level, self.min_distance, mask=free)
+            if new is not None:
+                self.points = np.concatenate([self.points, new.astype(np.float32)])
+        self._previous = gray
+        return motion

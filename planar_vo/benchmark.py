@@ -4,7 +4,13 @@ Prints ratios, never absolute pass/fail timings (machines are shared and noisy):
 - pose step (1-point RANSAC + refinement) vs OpenCV ``findEssentialMat + recoverPose``
   (5-point) and ``findHomography + decomposeHomographyMat`` (4-point), on the same
   correspondences of every frame of the bag;
-- a whole offline frame (bag decode included) vs KLT tracking alone on the same images.
+- a whole offline frame (bag decode included) vs the time its tracker takes (KLT from the
+  predicted positions, and detection), and
+  vs the plain OpenCV pipeline (:class:`planar_vo.baselines.OpenCVReference`, decode-free);
+- with ``--live``, the node's latency over DDS vs that whole-frame compute, and the highest
+  frame rate it keeps up with;
+- the accuracy of the run (planar_vo and the reference), so a speed gain that costs
+  accuracy shows.
 """
 
 from __future__ import annotations
@@ -18,8 +24,9 @@ from typing import Any
 
 import numpy as np
 
+from planar_vo import evaluate
 from planar_vo.bag import BagError, open_reader, typestore
-from planar_vo.baselines import essential_motion, homography_motion
+from planar_vo.baselines import OpenCVReference, essential_motion, homography_motion
 from planar_vo.camera import rays_through
 from planar_vo.config import ConfigError, defaults, load_params_file
 from planar_vo.messages import (
@@ -27,9 +34,10 @@ from planar_vo.messages import (
     camera_info_to_model,
     compressed_to_gray,
     image_to_gray,
+    planar_pose,
     stamp_to_seconds,
 )
-from planar_vo.odometry import VisualOdometry
+from planar_vo.odometry import VisualOdometry, compose
 from planar_vo.progress import Progress
 from planar_vo.ransac import PoseEstimationError, TransferModel, estimate_motion
 from planar_vo.tracker import Tracker
@@ -37,23 +45,31 @@ from planar_vo.tracker import Tracker
 __all__ = ['main', 'run_benchmark']
 
 DEFAULT_BAG = Path(__file__).resolve().parent.parent / 'bags' / 'default'
+_ACCURACY_KEYS = ('path_length_m', 't_rel_percent', 'r_rel_deg_per_100m', 'ate_rmse_m',
+                  'scale_ratio')
 
 
-def _read_raw(bag: Path) -> tuple[list[tuple[str, bytes]], Any]:
-    """Raw image messages (undecoded) and the first CameraInfo, read once into memory."""
-    images, info = [], None
+def _read_raw(bag: Path) -> tuple[list[tuple[str, bytes]], Any, dict[float, np.ndarray]]:
+    """Raw image messages (undecoded), the first CameraInfo and the ground truth.
+
+    The truth maps stamp → (x, y, yaw) and is empty if the bag has none; all is read once.
+    """
+    images, info, truth = [], None, {}
     with open_reader(bag) as reader:
         wanted = [c for c in reader.connections if c.msgtype in (
             'sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage',
-            'sensor_msgs/msg/CameraInfo')]
+            'sensor_msgs/msg/CameraInfo', 'nav_msgs/msg/Odometry')]
         for conn, _, raw in reader.messages(connections=wanted):
             if conn.msgtype.endswith('CameraInfo'):
                 info = info or reader.deserialize(raw, conn.msgtype)
+            elif conn.msgtype.endswith('Odometry'):
+                msg = reader.deserialize(raw, conn.msgtype)
+                truth[stamp_to_seconds(msg.header.stamp)] = planar_pose(msg.pose.pose)
             else:
                 images.append((conn.msgtype, bytes(raw)))
     if info is None or not images:
         raise BagError(f'{bag} has no images or no CameraInfo')
-    return images, info
+    return images, info, truth
 
 
 def _decode(msgtype: str, raw: bytes) -> tuple[np.ndarray, float]:
@@ -74,46 +90,61 @@ def _time(fn: Any, *args: Any, repeat: int = 3, **kwargs: Any) -> float:
 
 def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
                   frames: int | None = None) -> dict[str, Any]:
-    """Measure everything on ``bag``; return medians (ms) and ratios."""
-    images, info = _read_raw(bag)
+    """Measure everything on ``bag``; return medians (ms), ratios and the run's accuracy."""
+    images, info, truth = _read_raw(bag)
     images = images[:frames] if frames else images
     camera = camera_info_to_model(info)
     passes = 3
     bar = Progress((passes + 1) * len(images), 'bench', enabled=progress)
 
-    # 1-2. Tracking alone (the same tracker, detection and mask the pipeline uses) and whole
-    # frames (decode from CDR bytes + the full per-frame odometry), interleaved frame by frame
-    # so both see the same machine load; each frame's best of a few passes.
+    # 1-3. Whole frames (decode from CDR bytes + the full per-frame odometry), the time the
+    # tracker spends inside them (KLT from the predicted positions, and detection) and the
+    # plain OpenCV reference pipeline (on decoded images), interleaved frame by frame so all
+    # see the same machine load; each frame's best of a few passes.
     decoded = [_decode(*m) for m in images]
-    track_s = np.full(len(images), np.inf)
-    frame_s = np.full(len(images), np.inf)
-    correspondences = []
-    ground = VisualOdometry.from_params(camera, params)._mask
-    mask = ground if ground is not None else np.full(decoded[0][0].shape, 255, np.uint8)
+    track_s, frame_s, reference_s = (np.full(len(images), np.inf) for _ in range(3))
+    poses, reference_poses, tracks = [], [], []
     for k in range(passes):
         vo = VisualOdometry.from_params(camera, params)
-        tracker = Tracker(max_features=params['max_features'],
-                          quality_level=params['quality_level'],
-                          min_distance=params['min_distance'], window=params['klt_window'],
-                          levels=params['klt_levels'], fb_threshold=params['fb_threshold'])
+        in_tracker = _time_calls(vo.tracker, ('track', 'replenish'))
+        reference = OpenCVReference(
+            camera, vo.mounting, max_features=params['max_features'],
+            quality_level=params['quality_level'], min_distance=params['min_distance'],
+            fb_threshold=params['fb_threshold'],
+            inlier_threshold_px=params['inlier_threshold'])
+        reference_pose = np.zeros(3)
         for i, message in enumerate(images):
+            in_tracker[0] = 0.0
             t = time.perf_counter()
-            tracker.track(decoded[i][0])
-            elapsed = time.perf_counter() - t
-            if k == 0:
-                _, ref_px, cur_px = tracker.correspondences()  # frame to frame, as the pipeline's
-                correspondences.append((ref_px, cur_px))
-            t = time.perf_counter()
-            tracker.replenish(mask, is_reference=True)
-            tracker.set_reference()
-            track_s[i] = min(track_s[i], elapsed + time.perf_counter() - t)
-            t = time.perf_counter()
-            vo.process(*_decode(*message))
+            result = vo.process(*_decode(*message))
             frame_s[i] = min(frame_s[i], time.perf_counter() - t)
+            track_s[i] = min(track_s[i], in_tracker[0])
+            t = time.perf_counter()
+            motion = reference.process(decoded[i][0])
+            reference_s[i] = min(reference_s[i], time.perf_counter() - t)
+            if k == 0:
+                if motion is not None:
+                    reference_pose = compose(reference_pose, np.zeros((3, 3)), motion,
+                                             np.zeros((3, 3)))[0]
+                poses.append(result.pose)
+                reference_poses.append(reference_pose)
+                tracks.append((result.tracks, len(reference.points)))
             bar.update(k * len(images) + i + 1)
+
+    # Frame-to-frame correspondences (every frame a reference), as the pipeline forms them.
+    tracker = Tracker(max_features=params['max_features'], quality_level=params['quality_level'],
+                      min_distance=params['min_distance'], window=params['klt_window'],
+                      levels=params['klt_levels'], fb_threshold=params['fb_threshold'])
+    correspondences = []
+    mask = vo._mask if vo._mask is not None else np.full(decoded[0][0].shape, 255, np.uint8)
+    for gray, _ in decoded:
+        tracker.track(gray)
+        correspondences.append(tracker.correspondences()[1:])
+        tracker.replenish(mask, is_reference=True)
+        tracker.set_reference()
     correspondences = [_ground_pairs(vo, *pair) for pair in correspondences]
 
-    # 3. Pose step alone on the same correspondences, as tracked (the forward-backward check
+    # 4. Pose step alone on the same correspondences, as tracked (the forward-backward check
     # leaves few outliers) and with 30 % of them mismatched (what RANSAC is for).
     model = TransferModel.from_camera(vo.mounting, camera)
     threshold = params['inlier_threshold']
@@ -143,10 +174,13 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
     def ms(values: list[float]) -> float:
         return 1e3 * float(np.median(values))
 
-    median = {'klt_tracking_alone': ms(track_s), 'whole_frame_with_decode': ms(frame_s),
+    median = {'opencv_reference_pipeline': ms(reference_s),
+              'klt_tracking_in_pipeline': ms(track_s), 'whole_frame_with_decode': ms(frame_s),
               **{name: ms(values) for name, values in times.items()}}
-    ratios, bars = {'whole_frame_over_klt': median['whole_frame_with_decode'] / median[
-        'klt_tracking_alone']}, {'whole_frame_over_klt': '<= 1.2'}
+    ratios = {'whole_frame_over_reference': median['whole_frame_with_decode'] / median[
+        'opencv_reference_pipeline'], 'whole_frame_over_klt': median[
+        'whole_frame_with_decode'] / median['klt_tracking_in_pipeline']}
+    bars = {'whole_frame_over_reference': '<= 0.5', 'whole_frame_over_klt': '<= 1.2'}
     for suffix in ('', ' (30% outliers)'):
         pose = median['pose_1point_ransac_refine' + suffix]
         ratios['essential_5point_over_pose' + suffix] = median[
@@ -155,10 +189,19 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
             'opencv_4point_homography_decompose' + suffix] / pose
         bars['essential_5point_over_pose' + suffix] = '>= 10'
         bars['homography_4point_over_pose' + suffix] = '>= 1'
-    out = {'bag': str(bag), 'frames': len(images),
-           'pose_frames': len(times.get('pose_1point_ransac_refine', [])),
-           'median_ms': median, 'ratios': ratios, 'bars': bars}
-    return out
+    stamps = [stamp for _, stamp in decoded]
+    accuracy = {}
+    if all(stamp in truth for stamp in stamps):
+        truth_poses = np.array([truth[stamp] for stamp in stamps])
+        accuracy = {name: {key: value for key, value in evaluate.metrics(
+            np.array(estimate), truth_poses).items() if key in _ACCURACY_KEYS}
+            for name, estimate in (('planar_vo', poses), ('opencv_reference', reference_poses))}
+    mean_tracks = np.mean(tracks, axis=0)
+    return {'bag': str(bag), 'frames': len(images), 'image_size': list(decoded[0][0].shape[::-1]),
+            'pose_frames': len(times.get('pose_1point_ransac_refine', [])),
+            'tracks_per_frame': {'planar_vo': float(mean_tracks[0]),
+                                 'opencv_reference': float(mean_tracks[1])},
+            'median_ms': median, 'ratios': ratios, 'bars': bars, 'accuracy': accuracy}
 
 
 def run_live_benchmark(bag: Path, params_file: Path, *, frames: int = 150,
@@ -187,8 +230,30 @@ def run_live_benchmark(bag: Path, params_file: Path, *, frames: int = 150,
                          'p95_ms': float(np.percentile(latency, 95)) if len(latency) else None})
     finally:
         session.close()
-    kept_up = [r['rate_hz'] for r in rows if r['received'] == r['sent']]
-    return {'rates': rows, 'highest_rate_without_drops_hz': max(kept_up, default=None)}
+    highest = None  # the rates are increasing: the highest before the first that dropped
+    for row in rows:
+        if row['received'] < row['sent']:
+            break
+        highest = row['rate_hz']
+    return {'rates': rows, 'highest_rate_without_drops_hz': highest}
+
+
+def _time_calls(obj: Any, names: tuple[str, ...]) -> list[float]:
+    """Wrap methods of ``obj`` so the seconds spent in them add up in the returned [0]."""
+    spent = [0.0]
+
+    def timer(method: Any) -> Any:
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            t = time.perf_counter()
+            try:
+                return method(*args, **kwargs)
+            finally:
+                spent[0] += time.perf_counter() - t
+        return timed
+
+    for name in names:
+        setattr(obj, name, timer(getattr(obj, name)))
+    return spent
 
 
 def _mismatch(pairs: tuple[np.ndarray, ...], fraction: float,
@@ -245,17 +310,26 @@ def main(argv: list[str] | None = None) -> int:
         if args.live:
             from planar_vo.live import LiveError
             try:
-                result['live'] = run_live_benchmark(Path(args.bag), Path(args.node_params))
+                live = run_live_benchmark(Path(args.bag), Path(args.node_params))
             except LiveError as err:
                 raise OSError(str(err)) from None
+            at_30 = next((r for r in live['rates'] if r['rate_hz'] == 30.0), None)
+            if at_30 and at_30['median_ms'] is not None:
+                result['ratios']['node_latency_at_30hz_over_whole_frame'] = (
+                    at_30['median_ms'] / result['median_ms']['whole_frame_with_decode'])
+                result['bars']['node_latency_at_30hz_over_whole_frame'] = '<= 1.3'
+            result['live'] = live
     except (BagError, ConfigError, ImageError, OSError) as err:
         print(f'planar_vo_bench: error: {err}', file=sys.stderr)
         return 2
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
-    print(f'{result["frames"]} frames of {result["bag"]} (pose step on '
-          f'{result["pose_frames"]} frames)')
+    width, height = result['image_size']
+    print(f'{result["frames"]} frames ({width}x{height}) of {result["bag"]} (pose step on '
+          f'{result["pose_frames"]} frames); tracks per frame: planar_vo '
+          f'{result["tracks_per_frame"]["planar_vo"]:.0f}, OpenCV reference '
+          f'{result["tracks_per_frame"]["opencv_reference"]:.0f}')
     print('median per frame:')
     for name, value in result['median_ms'].items():
         print(f'  {name:52s} {value:8.3f} ms')
@@ -270,6 +344,10 @@ def main(argv: list[str] | None = None) -> int:
                   f'95th percentile {row["p95_ms"] or float("nan"):.1f} ms')
         print(f'  highest rate without dropped frames: '
               f'{result["live"]["highest_rate_without_drops_hz"]} Hz')
+    for name, acc in result['accuracy'].items():
+        print(f'accuracy of this run, {name}: t_rel {acc["t_rel_percent"]:.3f} %, r_rel '
+              f'{acc["r_rel_deg_per_100m"]:.2f} deg/100m, ATE {acc["ate_rmse_m"]:.3f} m, '
+              f'scale ratio {acc["scale_ratio"]:.4f} over {acc["path_length_m"]:.1f} m')
     return 0
 
 

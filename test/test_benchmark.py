@@ -1,0 +1,42 @@
+"""planar_vo_bench: what it reports (never how fast: timings are not asserted anywhere)."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planar_vo.benchmark import main
+
+BAG = Path(__file__).resolve().parents[1] / 'bags' / 'default'
+
+
+def test_reports_the_reference_pipeline_ratios_and_the_runs_accuracy(capsys):
+    assert main([str(BAG), '--frames', '12', '--json']) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out['frames'] == 12 and out['image_size'] == [640, 480]
+    median, ratios = out['median_ms'], out['ratios']
+    for name in ('opencv_reference_pipeline', 'klt_tracking_in_pipeline',
+                 'whole_frame_with_decode', 'pose_1point_ransac_refine'):
+        assert np.isfinite(median[name]) and median[name] > 0
+    assert ratios['whole_frame_over_reference'] == pytest.approx(
+        median['whole_frame_with_decode'] / median['opencv_reference_pipeline'])
+    assert set(out['bars']) == set(ratios)
+    # Both pipelines hold about the same number of tracks: the ratio compares like with like.
+    assert 300 <= out['tracks_per_frame']['opencv_reference'] <= 400
+    assert 300 <= out['tracks_per_frame']['planar_vo'] <= 400
+    # Accuracy against the bag's ground truth, for both (the reference is the cruder one).
+    ours, reference = out['accuracy']['planar_vo'], out['accuracy']['opencv_reference']
+    assert ours['path_length_m'] > 3 and ours['path_length_m'] == reference['path_length_m']
+    assert abs(ours['scale_ratio'] - 1) < 0.01 and ours['t_rel_percent'] < 0.5
+    assert abs(reference['scale_ratio'] - 1) < 0.1 and reference['t_rel_percent'] < 10
+
+
+@pytest.mark.parametrize('args, message', [
+    (['/nonexistent/bag'], 'not found'),
+    ([str(BAG), '--frames', '1'], '--frames must be at least 2'),
+])
+def test_bad_input_is_one_clear_line(capsys, args, message):
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
