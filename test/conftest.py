@@ -46,20 +46,21 @@ def synth_camera_model(renderer):
 
 
 def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, camera=None,
-                 suspension=None, mounting=None, configured=None, exposure=0.0):
+                 suspension=None, mounting=None, configured=None, exposure=0.0, rate=30.0):
     """Render a synthetic scenario and run the odometry core on it (no bag, no ROS).
 
     The images are rendered with ``mounting`` (default: the scenario's) on ``suspension``
     (default: the scenario's body) with auto-exposure changes within +-``exposure``. The
     odometry is configured with ``configured`` (a mounting, or a ``synth.MountingError`` off
     the true one; default: the true one); ``overrides`` win. ``corrupt(k, image, stamp)``
-    may replace frame k (image, stamp) to inject bad input.
-    Returns (results, ground truth poses (N, 3)).
+    may replace frame k (image, stamp) to inject bad input. Frames are ``rate`` Hz apart;
+    ``synth.render_scenario`` with the same arguments gives the trajectory with the true camera
+    pose of every frame. Returns (results, ground truth poses (N, 3)).
     """
     from planar_vo import config, synth
     from planar_vo.odometry import VisualOdometry
 
-    renderer, traj = synth.render_scenario(scenario, frames, seed, camera=camera,
+    renderer, traj = synth.render_scenario(scenario, frames, seed, rate=rate, camera=camera,
                                            mounting=mounting, suspension=suspension,
                                            exposure=exposure)
     if configured is None or isinstance(configured, synth.MountingError):
@@ -73,7 +74,7 @@ def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, came
     results = []
     for k in range(frames):
         image = renderer.render_frame(traj, k)
-        stamp = k / 30.0
+        stamp = k / rate
         if corrupt is not None:
             image, stamp = corrupt(k, image, stamp)
         results.append(vo.process(image, stamp))
