@@ -11,7 +11,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export ROS_DOMAIN_ID ?= 42
 export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 
-.PHONY: venv test lint pytest demo bench paper clean
+.PHONY: venv test lint pytest demo bench soak paper clean
 
 venv: $(STAMP)
 
@@ -37,6 +37,11 @@ demo: $(STAMP)
 # Speed as ratios against baselines measured in the same run (never a pass/fail timing).
 bench: $(STAMP)
 	$(VENV)/bin/planar_vo_bench bags/default --live
+
+# A long run over DDS (about 6 minutes, not part of `make test`): 20 000 frames at 60 Hz, the
+# bag played forward and backward; prints frames answered and the node's resident memory.
+soak: $(STAMP)
+	$(VENV)/bin/planar_vo_soak bags/default --frames 20000 --rate 60
 
 # The paper's Monte Carlo experiment (Fig. 5), extended with OpenCV's 5- and 4-point methods.
 paper: $(STAMP)

@@ -30,7 +30,8 @@ setup(
     install_requires=['setuptools'],
     extras_require={
         'wheels': WHEELS,
-        'test': ['pytest', 'ruff', 'matplotlib', 'colcon-common-extensions', 'setuptools<80'],
+        'test': ['pytest', 'hypothesis', 'ruff', 'matplotlib', 'colcon-common-extensions',
+                 'setuptools<80'],
     },
     zip_safe=True,
     maintainer='planar_vo maintainers',
@@ -44,6 +45,7 @@ setup(
             'planar_vo_replay = planar_vo.replay:main',
             'planar_vo_demo = planar_vo.demo:main',
             'planar_vo_bench = planar_vo.benchmark:main',
+            'planar_vo_soak = planar_vo.soak:main',
             'planar_vo_synth = planar_vo.synth:main',
         ],
     },

@@ -14,13 +14,18 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-__all__ = ['CameraModel', 'CameraModelError', 'Mounting', 'level_to_base', 'rays_through',
-           'BODY_FROM_OPTICAL']
+__all__ = ['CameraModel', 'CameraModelError', 'MAX_IMAGE_SIDE', 'Mounting', 'level_to_base',
+           'rays_through', 'BODY_FROM_OPTICAL']
 
 # Columns: optical x = body -y, optical y = body -z, optical z = body x (REP-103 optical frame).
 BODY_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 DISTORTION_MODELS = {'plumb_bob': (4, 5, 8, 12, 14), 'rational_polynomial': (8, 12, 14),
                      'equidistant': (4,)}
+MAX_IMAGE_SIDE = 16384  # px: larger "images" are corrupt messages, not cameras
+# fx from 0.05 to 50 image widths: fields of view from about 170 to 1 degree.
+MIN_FOCAL_PER_WIDTH, MAX_FOCAL_PER_WIDTH = 0.05, 50.0
+_PRINCIPAL_MARGIN = 0.25  # the principal point may lie this fraction of the size outside
+MAX_ROUND_TRIP_PX = 1.0  # undistort/distort over the ground region must agree this well
 # OpenCV's iterative undistortion stops per point once it reprojects within a millionth of a
 # pixel (its default of 5 iterations leaves 0.06 px at this bag's corners); the fisheye
 # solver is Newton's method on the angle, so its tolerance, in radians, costs nothing.
@@ -77,10 +82,14 @@ class CameraModel:
     def __post_init__(self) -> None:
         K = np.asarray(self.K, dtype=float).reshape(3, 3)
         D = np.asarray(self.D, dtype=float).ravel()
-        if not (K[0, 0] > 0 and K[1, 1] > 0) or not np.all(np.isfinite(K)):
+        if not np.all(np.isfinite(K)) or not (K[0, 0] > 0 and K[1, 1] > 0):
             raise CameraModelError(
                 'camera is uncalibrated (K has a zero or invalid focal length): '
                 'calibrate it and publish a CameraInfo with a real K')
+        _check_intrinsics(K, int(self.width), int(self.height))
+        if not np.all(np.isfinite(D)):
+            raise CameraModelError(f'distortion coefficients D = {D.tolist()} are not all '
+                                   'finite: publish the calibration\'s real D')
         model = self.distortion_model or 'plumb_bob'
         if np.allclose(D, 0.0):
             D = np.zeros(0)
@@ -137,9 +146,49 @@ class CameraModel:
             out = cv2.projectPoints(obj, zero, zero, self.K, self.D if self.D.size else None)[0]
         return out.reshape(-1, 2)
 
+    def round_trip_px(self, pixels: np.ndarray) -> np.ndarray:
+        """Pixel error (N,) of ``distort(normalize(pixels))``; inf where it is not finite.
+
+        Iterative undistortion of a model that folds over (or of absurd coefficients) does
+        not converge: this is how a calibration that cannot be inverted shows itself.
+        """
+        pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+        with np.errstate(all='ignore'):
+            back = self.distort(self.normalize(pixels))
+            error = np.linalg.norm(back - pixels, axis=1)
+        return np.where(np.isfinite(error), error, np.inf)
+
     def rays(self, pixels: np.ndarray) -> np.ndarray:
         """Unnormalized rays ``[x, y, 1]`` (N, 3) in the optical frame."""
         return rays_through(self.normalize(pixels))
+
+
+def _check_intrinsics(K: np.ndarray, width: int, height: int) -> None:
+    """Refuse a K no real camera has, saying which value is wrong (see MAX_IMAGE_SIDE)."""
+    fx, fy = K[0, 0], K[1, 1]
+    if not np.allclose(K[2], [0.0, 0.0, 1.0]) or K[1, 0] != 0.0:
+        raise CameraModelError(f'K = {K.ravel().tolist()} is not an upper-triangular camera '
+                               'matrix with last row [0, 0, 1]: publish K row-major')
+    if not 0.25 <= fy / fx <= 4.0:
+        raise CameraModelError(f'focal lengths fx = {fx:g}, fy = {fy:g} give an aspect ratio '
+                               'outside 0.25..4: check K[0] and K[4]')
+    if abs(K[0, 1]) > 0.1 * fx:
+        raise CameraModelError(f'skew K[1] = {K[0, 1]:g} is more than a tenth of fx = {fx:g}: '
+                               'check K')
+    if width == 0 and height == 0:
+        return  # size unknown yet (core use): the image will give it
+    if not (0 < width <= MAX_IMAGE_SIDE and 0 < height <= MAX_IMAGE_SIDE):
+        raise CameraModelError(f'image size {width}x{height} is outside 1..{MAX_IMAGE_SIDE} '
+                               'per side: publish the width and height of the images')
+    if not (MIN_FOCAL_PER_WIDTH * width <= fx <= MAX_FOCAL_PER_WIDTH * width):
+        raise CameraModelError(
+            f'fx = {fx:g} px is implausible for an image {width} px wide (expected '
+            f'{MIN_FOCAL_PER_WIDTH:g}..{MAX_FOCAL_PER_WIDTH:g} times the width): check K')
+    cx, cy = K[0, 2], K[1, 2]
+    if not (-_PRINCIPAL_MARGIN * width <= cx <= (1 + _PRINCIPAL_MARGIN) * width
+            and -_PRINCIPAL_MARGIN * height <= cy <= (1 + _PRINCIPAL_MARGIN) * height):
+        raise CameraModelError(f'principal point ({cx:g}, {cy:g}) is far outside the '
+                               f'{width}x{height} image: check K[2] and K[5]')
 
 
 @dataclass(frozen=True)

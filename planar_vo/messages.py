@@ -22,7 +22,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from planar_vo.camera import CameraModel
+from planar_vo.camera import MAX_IMAGE_SIDE, CameraModel, CameraModelError
 
 __all__ = ['ImageError', 'UNOBSERVED_VARIANCE', 'SUPPORTED_ENCODINGS', 'image_to_gray',
            'compressed_to_gray', 'camera_info_to_model', 'stamp_to_seconds', 'covariance_6x6',
@@ -58,6 +58,7 @@ _ENCODINGS: dict[str, tuple[int, int, int | None]] = {
     'bayer_grbg16': (1, 2, cv2.COLOR_BayerGB2GRAY),
 }
 SUPPORTED_ENCODINGS = tuple(e for e in _ENCODINGS if not e[0].isdigit())
+_PAIRED_ENCODINGS = ('yuv422', 'uyvy', 'yuyv', 'yuv422_yuy2')  # 2 pixels in 4 bytes
 
 
 def image_to_gray(msg: Any) -> np.ndarray:
@@ -74,19 +75,8 @@ def image_to_gray(msg: Any) -> np.ndarray:
             f'{", ".join(SUPPORTED_ENCODINGS)})')
     channels, depth, code = spec
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
-    if height <= 0 or width <= 0:
-        raise ImageError(f'image is empty ({width}x{height})')
-    row_bytes = width * channels * depth
-    if step < row_bytes:
-        raise ImageError(f'image step {step} is smaller than a row of {width} {encoding} '
-                         f'pixels ({row_bytes} bytes)')
-    buf = np.frombuffer(msg.data, dtype=np.uint8)
-    if buf.size < step * (height - 1) + row_bytes:
-        raise ImageError(f'image data has {buf.size} bytes, {encoding} {width}x{height} with '
-                         f'step {step} needs {step * height}')
-    rows = buf[:step * height] if buf.size >= step * height else np.concatenate(
-        [buf, np.zeros(step * height - buf.size, np.uint8)])
-    rows = rows.reshape(height, step)[:, :row_bytes]
+    rows = _pixel_rows(np.frombuffer(msg.data, dtype=np.uint8), encoding, height, width, step,
+                       width * channels * depth)
     if depth == 2:
         dtype = np.dtype('>u2' if msg.is_bigendian else '<u2')
         rows = np.ascontiguousarray(rows).view(dtype)
@@ -102,6 +92,33 @@ def image_to_gray(msg: Any) -> np.ndarray:
                          f'{str(err).strip().splitlines()[-1]}') from err
 
 
+def _pixel_rows(buf: np.ndarray, encoding: str, height: int, width: int, step: int,
+                row_bytes: int) -> np.ndarray:
+    """The (height, row_bytes) pixel bytes of an image buffer, as a view (no copy).
+
+    Every size is checked against the data before anything is allocated, so a hostile
+    ``step`` or size cannot make us allocate what the message does not hold.
+    """
+    if height <= 0 or width <= 0:
+        raise ImageError(f'image is empty ({width}x{height}): the driver sent no pixels')
+    if height > MAX_IMAGE_SIDE or width > MAX_IMAGE_SIDE:
+        raise ImageError(f'image size {width}x{height} is over the limit of {MAX_IMAGE_SIDE} '
+                         'per side: check the width and height the driver sends')
+    if encoding.lower() in _PAIRED_ENCODINGS and width % 2:
+        raise ImageError(f'{encoding} packs two pixels in four bytes, so the width must be '
+                         f'even, not {width}')
+    if step < row_bytes:
+        raise ImageError(f'image step {step} is smaller than a row of {width} {encoding} '
+                         f'pixels ({row_bytes} bytes)')
+    need = step * (height - 1) + row_bytes  # the last row's padding may be left out
+    if not need <= buf.size <= step * height:
+        raise ImageError(f'image data has {buf.size} bytes, {encoding} {width}x{height} with '
+                         f'step {step} needs {step * height}: width, height, step or '
+                         'encoding is wrong')
+    return np.lib.stride_tricks.as_strided(buf, (height, row_bytes), (step, 1),
+                                           writeable=False)
+
+
 def compressed_to_gray(msg: Any) -> np.ndarray:
     """sensor_msgs/CompressedImage (JPEG, PNG, ...) → grey uint8 (H, W). Raises ImageError."""
     fmt = str(msg.format)
@@ -114,17 +131,32 @@ def compressed_to_gray(msg: Any) -> np.ndarray:
     gray = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
     if gray is None or gray.size == 0:
         raise ImageError(f'cannot decode compressed image (format {fmt!r}, {buf.size} bytes)')
+    if max(gray.shape) > MAX_IMAGE_SIDE:
+        raise ImageError(f'compressed image is {gray.shape[1]}x{gray.shape[0]}, over the '
+                         f'limit of {MAX_IMAGE_SIDE} per side')
     if gray.dtype != np.uint8:  # 16-bit PNG
         gray = (gray >> 8).astype(np.uint8)
     return gray
 
 
 def camera_info_to_model(msg: Any) -> CameraModel:
-    """sensor_msgs/CameraInfo → CameraModel; raises CameraModelError (e.g. K all zero)."""
+    """sensor_msgs/CameraInfo → CameraModel; raises CameraModelError with the reason.
+
+    Beyond the checks of CameraModel (finite, plausible K and D), the image size must be
+    given and R and P must be finite.
+    """
+    width, height = int(msg.width), int(msg.height)
+    if width <= 0 or height <= 0:
+        raise CameraModelError(f'CameraInfo gives no image size ({width}x{height}): publish '
+                               'the width and height the camera was calibrated at')
+    for name in ('r', 'p'):
+        values = np.asarray(getattr(msg, name), dtype=float)
+        if not np.all(np.isfinite(values)):
+            raise CameraModelError(f'CameraInfo {name.upper()} = {values.tolist()} is not all '
+                                   'finite: publish the calibration\'s real matrices')
     return CameraModel(K=np.asarray(msg.k, dtype=float).reshape(3, 3),
                        D=np.asarray(msg.d, dtype=float),
-                       distortion_model=str(msg.distortion_model),
-                       width=int(msg.width), height=int(msg.height))
+                       distortion_model=str(msg.distortion_model), width=width, height=height)
 
 
 def stamp_to_seconds(stamp: Any) -> float:

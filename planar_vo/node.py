@@ -14,8 +14,11 @@ the odometry (tracking restarts, the pose is kept).
 
 from __future__ import annotations
 
+import functools
+import re
 import sys
 import time
+from collections import OrderedDict
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -35,17 +38,36 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_srvs.srv import Trigger
 
 from planar_vo import config, messages
+from planar_vo.camera import CameraModelError
 from planar_vo.odometry import VisualOdometry, mounting_from_params
 
 _PARAMS = {p.name: p for p in config.SCHEMA}
 _OUTPUT_PARAMS = {'odom_frame', 'base_frame', 'publish_tf', 'publish_path',
                   'publish_debug_image', 'image_transport', 'image_reliability'}
 _WARN_EVERY = 10.0  # s: the same cause of a skipped frame is logged at most this often
+_WARN_CAUSES = 64  # distinct causes remembered for throttling (oldest forgotten first)
+# Numbers in a message (sizes like 640x480 too), but not digits inside names like mono16.
+_NUMBER = re.compile(r'\d+x\d+|(?<![A-Za-z_\d.])[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?'
+                     r'|\bnan\b|\binf\b')
 _PATH_STEP = 0.05  # m or rad between poses appended to ~/path
 
 
 class StartupError(Exception):
     """An invalid start-up parameter: reported as one line, exit status 2."""
+
+
+def _guarded(where: str):
+    """Run a callback so that an unexpected exception is one ERROR line, never a crash."""
+    def wrap(callback):
+        @functools.wraps(callback)
+        def guarded(self, *args):
+            try:
+                return callback(self, *args)
+            except Exception as err:  # noqa: BLE001 - a bug must not kill the node
+                if self.context.ok():  # else shutting down: publishing fails, no bug
+                    self._unexpected(where, err)
+        return guarded
+    return wrap
 
 
 class PlanarVoNode(Node):
@@ -55,8 +77,8 @@ class PlanarVoNode(Node):
         super().__init__('planar_vo', **kwargs)
         self.vo: VisualOdometry | None = None
         self.camera = None
-        self._warned: dict[str, tuple[float, int]] = {}
-        self._stats = {'frames': 0, 'estimated': 0, 'failed': 0, 'skipped': 0,
+        self._warned: OrderedDict[str, tuple[float, int]] = OrderedDict()
+        self._stats = {'frames': 0, 'estimated': 0, 'failed': 0, 'skipped': 0, 'errors': 0,
                        'last_status': 'waiting for images', 'tracks': 0, 'inliers': 0,
                        'ms': 0.0, 'ms_sum': 0.0}
         self.params = self._declare_parameters()
@@ -169,22 +191,40 @@ class PlanarVoNode(Node):
             self.vo.counters = old.counters
 
     # ---------------------------------------------------------------- input
-    def _warn(self, cause: str, text: str) -> None:
-        """Log ``text`` once per cause, then at most every _WARN_EVERY s with a count."""
+    def _warn(self, text: str, *, error: bool = False) -> None:
+        """Log ``text`` at once, then the same cause at most every _WARN_EVERY s with a count.
+
+        The cause is the text with its numbers stripped, so the same problem with other
+        numbers is throttled and a different problem is always reported at once.
+        """
+        cause = _NUMBER.sub('#', text)
         now = time.monotonic()
-        last, count = self._warned.get(cause, (-1e9, 0))
+        last, count = self._warned.pop(cause, (-1e9, 0))
         if now - last >= _WARN_EVERY:
             more = f' (and {count} more times)' if count else ''
-            self.get_logger().warning(text + more)
-            self._warned[cause] = (now, 0)
+            if error:  # rclpy ties a severity to each call site: two calls, not one
+                self.get_logger().error(text + more)
+            else:
+                self.get_logger().warning(text + more)
+            last, count = now, 0
         else:
-            self._warned[cause] = (last, count + 1)
+            count += 1
+        self._warned[cause] = (last, count)  # most recent last
+        if len(self._warned) > _WARN_CAUSES:
+            self._warned.popitem(last=False)
 
+    def _unexpected(self, where: str, err: Exception) -> None:
+        """A bug, not bad input: one ERROR line with the exception, and a counter."""
+        self._stats['errors'] += 1
+        self._warn(f'unexpected {type(err).__name__} while handling {where}: {err} '
+                   '(state restored; please report this line)', error=True)
+
+    @_guarded('camera_info')
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
             self._set_camera(messages.camera_info_to_model(msg))
-        except Exception as err:  # noqa: BLE001 - CameraModelError mostly; never die
-            self._warn('camera_info', f'camera_info refused: {err}')
+        except CameraModelError as err:
+            self._warn(f'camera_info refused: {err}')
 
     def _set_camera(self, camera) -> None:
         if self.camera is not None and (
@@ -202,29 +242,29 @@ class PlanarVoNode(Node):
             self.get_logger().info('camera_info changed: intrinsics updated')
         self.camera = camera
 
+    @_guarded('an image')
     def _on_image(self, msg: Image) -> None:
         self._process(msg, messages.image_to_gray)
 
+    @_guarded('a compressed image')
     def _on_compressed(self, msg: CompressedImage) -> None:
         self._process(msg, messages.compressed_to_gray)
 
     def _process(self, msg, decode) -> None:
         if self.vo is None:
             self._stats['skipped'] += 1
-            self._warn('no_camera_info', f'no valid camera_info on '
-                       f'{self._info_sub.topic_name} yet: image skipped')
+            self._warn(f'no valid camera_info on {self._info_sub.topic_name} yet: image '
+                       'skipped')
             return
         try:
             gray = decode(msg)
-            cam = self.camera
-            if cam.width and gray.shape != (cam.height, cam.width):
-                self._warn('size', f'image is {gray.shape[1]}x{gray.shape[0]} but camera_info '
-                           f'says {cam.width}x{cam.height}: intrinsics used unscaled')
-            result = self.vo.process(gray, messages.stamp_to_seconds(msg.header.stamp))
-            self._publish(msg.header, gray, result)
-        except Exception as err:  # noqa: BLE001 - bad input must never kill the node
+        except messages.ImageError as err:
             self._stats['skipped'] += 1
-            self._warn(f'error:{err}', f'image skipped: {err}')
+            self._warn(f'image skipped: {err}')
+            return
+        # VisualOdometry.process restores its state itself when it raises.
+        result = self.vo.process(gray, messages.stamp_to_seconds(msg.header.stamp))
+        self._publish(msg.header, gray, result)
 
     # ---------------------------------------------------------------- output
     def _publish(self, header, gray, result) -> None:
@@ -235,7 +275,7 @@ class PlanarVoNode(Node):
                  ms=result.timing_ms.get('total', 0.0))
         s['ms_sum'] += s['ms']
         if result.message and result.status not in ('ok', 'first'):
-            self._warn(result.status, f'{result.status}: {result.message}')
+            self._warn(f'{result.status}: {result.message}')
         odom = messages.odometry_from_result(result, header.stamp, p['odom_frame'],
                                              p['base_frame'], Odometry)
         self._odom_pub.publish(odom)
@@ -263,13 +303,19 @@ class PlanarVoNode(Node):
 
     def _on_reset(self, request, response):
         self._path = Path()
-        if self.vo is not None:
-            self.vo.reset()
+        try:
+            if self.vo is not None:
+                self.vo.reset()
+        except Exception as err:  # noqa: BLE001 - a bug must not kill the node
+            self._unexpected('~/reset', err)
+            response.success, response.message = False, f'{type(err).__name__}: {err}'
+            return response
         response.success = True
         response.message = 'odometry restarted at the origin'
         self.get_logger().info(response.message)
         return response
 
+    @_guarded('diagnostics')
     def _publish_diagnostics(self) -> None:
         s = self._stats
         status = DiagnosticStatus(name='planar_vo: visual odometry', hardware_id='camera')
@@ -283,7 +329,8 @@ class PlanarVoNode(Node):
                   'processing time (ms)': f'{s["ms"]:.2f}',
                   'mean processing time (ms)': f'{s["ms_sum"] / max(s["frames"], 1):.2f}',
                   'frames': s['frames'], 'frames estimated': s['estimated'],
-                  'frames failed': s['failed'], 'frames skipped': s['skipped']}
+                  'frames failed': s['failed'], 'frames skipped': s['skipped'],
+                  'unexpected errors': s['errors']}
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self.get_clock().now().to_msg()

@@ -15,7 +15,13 @@ import cv2
 import numpy as np
 
 from planar_vo.baselines import homography_motion
-from planar_vo.camera import CameraModel, Mounting, rays_through
+from planar_vo.camera import (
+    MAX_ROUND_TRIP_PX,
+    CameraModel,
+    CameraModelError,
+    Mounting,
+    rays_through,
+)
 from planar_vo.ransac import (
     PoseEstimationError,
     RansacResult,
@@ -79,18 +85,48 @@ def compose(
 
 
 def ground_mask(camera: CameraModel, mounting: Mounting, horizon_margin: float,
-                border: int = 8) -> np.ndarray:
-    """uint8 mask (H, W) of pixels whose rays hit the ground ``horizon_margin`` below it."""
+                border: int = 8, *, check_round_trip: bool = False) -> np.ndarray:
+    """uint8 mask (H, W) of pixels whose rays hit the ground ``horizon_margin`` below it.
+
+    With ``check_round_trip``, a lens model that cannot be inverted where it will be used
+    raises CameraModelError: undistortion gives no ray for some pixel, or undistorting and
+    distorting again moves a ground pixel by more than MAX_ROUND_TRIP_PX (garbage tracks
+    would follow otherwise).
+    """
     step = 4
     h, w = camera.height, camera.width
     xs, ys = np.meshgrid(np.arange(0, w, step), np.arange(0, h, step))
     grid = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
-    _, valid = mounting.ground_points(camera.rays(grid), horizon_margin)
+    rays = camera.rays(grid)
+    _, valid = mounting.ground_points(rays, horizon_margin)
+    if check_round_trip:
+        _check_round_trip(camera, grid, rays, valid)
     coarse = valid.reshape(xs.shape).astype(np.uint8) * 255
     mask = cv2.resize(coarse, (xs.shape[1] * step, xs.shape[0] * step),
                       interpolation=cv2.INTER_NEAREST)[:h, :w].copy()
     mask[:border], mask[-border:], mask[:, :border], mask[:, -border:] = 0, 0, 0, 0
     return mask
+
+
+def _check_round_trip(camera: CameraModel, grid: np.ndarray, rays: np.ndarray,
+                      ground: np.ndarray) -> None:
+    """Raise CameraModelError if ``camera`` cannot be inverted over the ground pixels."""
+    where = f'{camera.distortion_model} D = {np.round(camera.D, 6).tolist()}'
+    no_ray = ~np.all(np.isfinite(rays), axis=1)
+    if no_ray.any():
+        u, v = grid[np.argmax(no_ray)]
+        raise CameraModelError(f'undistortion gives no ray at pixel ({u:.0f}, {v:.0f}) with '
+                               f'{where}: check the distortion coefficients')
+    if not ground.any():
+        return
+    error = camera.round_trip_px(grid[ground])
+    worst = int(np.argmax(error))
+    if error[worst] > MAX_ROUND_TRIP_PX:
+        u, v = grid[ground][worst]
+        raise CameraModelError(
+            f'lens model cannot be inverted over the ground: undistort/distort moves pixel '
+            f'({u:.0f}, {v:.0f}) by {error[worst]:.3g} px (limit {MAX_ROUND_TRIP_PX:g}) with '
+            f'{where}: check the distortion coefficients and model')
 
 
 class VisualOdometry:
@@ -121,8 +157,7 @@ class VisualOdometry:
         self.counters = {'frames': 0, 'estimated': 0, 'no_estimate': 0, 'reinitialized': 0,
                          'time_jumps': 0, 'blank': 0, 'skipped': 0}
         self._rng = np.random.default_rng(0)
-        self.camera, self.mounting = camera, mounting
-        self._update_geometry()
+        self._update_geometry(camera, mounting, check_round_trip=True)
         self.reset()
 
     @classmethod
@@ -152,24 +187,46 @@ class VisualOdometry:
         self._failed_frames = 0
 
     def set_camera(self, camera: CameraModel) -> None:
-        """New intrinsics (e.g. a changed CameraInfo); tracks stay."""
-        self.camera = camera
-        self._update_geometry()
+        """New intrinsics (e.g. a changed CameraInfo); tracks stay.
+
+        Raises CameraModelError (and keeps the old camera) when the lens model cannot be
+        inverted over the ground region.
+        """
+        self._update_geometry(camera, self.mounting, check_round_trip=True)
 
     def set_mounting(self, mounting: Mounting) -> None:
         """New camera mounting (run-time parameter change); tracks stay."""
-        self.mounting = mounting
-        self._update_geometry()
+        self._update_geometry(self.camera, mounting)
 
-    def _update_geometry(self) -> None:
-        self._model = TransferModel.from_camera(self.mounting, self.camera)
-        self.tracker.set_normalize(self.camera.normalize)
-        self._mask = None
-        if self.camera.width > 0 and self.camera.height > 0:
-            self._mask = ground_mask(self.camera, self.mounting, self.horizon_margin)
+    def _update_geometry(self, camera: CameraModel, mounting: Mounting, *,
+                         check_round_trip: bool = False) -> None:
+        """Switch to ``camera`` and ``mounting``, or change nothing if that raises."""
+        mask = None
+        if camera.width > 0 and camera.height > 0:
+            mask = ground_mask(camera, mounting, self.horizon_margin,
+                               check_round_trip=check_round_trip)
+        self._model = TransferModel.from_camera(mounting, camera)
+        self.camera, self.mounting, self._mask = camera, mounting, mask
+        self.tracker.set_normalize(camera.normalize)
 
     def process(self, gray: np.ndarray, stamp: float) -> FrameResult:
-        """Add one grey image (uint8, HxW) taken at ``stamp`` (s); return the new state."""
+        """Add one grey image (uint8, HxW) taken at ``stamp`` (s); return the new state.
+
+        If anything raises, the state (tracks, stamps, pose, counters) is left as it was
+        before the call and the exception propagates: a caller that survives it can go on.
+        """
+        saved = dict(vars(self)), dict(vars(self.tracker)), dict(self.counters)
+        try:
+            return self._process(gray, stamp)
+        except BaseException:
+            # Every piece of state is an attribute that is replaced, never changed in place,
+            # except the counters: restoring the attributes restores the state.
+            vars(self).update(saved[0])
+            vars(self.tracker).update(saved[1])
+            self.counters = saved[2]
+            raise
+
+    def _process(self, gray: np.ndarray, stamp: float) -> FrameResult:
         t0 = time.perf_counter()
         self.counters['frames'] += 1
         h, w = gray.shape
@@ -179,8 +236,8 @@ class VisualOdometry:
                 f'image is {w}x{h} but CameraInfo says {self.camera.width}x'
                 f'{self.camera.height}: frame skipped (binning or ROI needs its own CameraInfo)'))
         if self._mask is None:
-            self.camera = _with_size(self.camera, gray.shape)
-            self._update_geometry()
+            self._update_geometry(_with_size(self.camera, gray.shape), self.mounting,
+                                  check_round_trip=True)
         if self._last_stamp is not None and stamp == self._last_stamp:
             self.counters['skipped'] += 1
             return self._result(stamp, 'skipped', t0, message='duplicate stamp: frame skipped')
@@ -193,8 +250,10 @@ class VisualOdometry:
             self.counters['time_jumps'] += 1
             self._restart(stamp, extrapolate=False)
             self._detect(is_reference=True, gray=gray)
+            why = (f'stamp went backwards by {-gap:.3f} s' if gap < 0 else
+                   f'stamps {gap:.3f} s apart, over max_frame_gap {self.max_frame_gap:g} s')
             return self._result(stamp, 'time_jump', t0,
-                                message=f'time jumped by {gap:+.3f} s: tracking restarted')
+                                message=f'time jumped ({why}): tracking restarted')
         previous, self._last_stamp = self._last_stamp, stamp
         if self._ref_stamp is None:
             self._ref_stamp = stamp

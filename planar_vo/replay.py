@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -116,22 +117,21 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
         try:
             if writer:
                 writer.open()
-            for conn, _, raw in reader.messages(connections=wanted):
-                msg = reader.deserialize(raw, conn.msgtype)
+            for conn, msg in _read(reader, wanted, bag):
                 if conn.topic == info_conn.topic:
                     try:
                         camera = camera_info_to_model(msg)
+                        if vo is None:
+                            vo = VisualOdometry.from_params(camera, params)
+                        elif not np.array_equal(camera.K, vo.camera.K) or not np.array_equal(
+                                camera.D, vo.camera.D):
+                            vo.set_camera(camera)
                     except CameraModelError as err:
                         _warn_once(warnings, f'CameraInfo refused: {err}')
                         continue
-                    if vo is None:
-                        vo = VisualOdometry.from_params(camera, params)
-                        if pending is not None:  # its CameraInfo came just after it
-                            _process(vo, pending, estimate, writer, params, warnings)
-                            pending = None
-                    elif not np.array_equal(camera.K, vo.camera.K) or not np.array_equal(
-                            camera.D, vo.camera.D):
-                        vo.set_camera(camera)
+                    if pending is not None:  # its CameraInfo came just after it
+                        _process(vo, pending, estimate, writer, params, warnings)
+                        pending = None
                 elif truth_conn is not None and conn.topic == truth_conn.topic:
                     truth.add(stamp_to_seconds(msg.header.stamp), planar_pose(msg.pose.pose))
                 else:
@@ -143,11 +143,6 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
                         pending = msg
                         continue
                     _process(vo, msg, estimate, writer, params, warnings)
-        except BagError:
-            raise
-        except Exception as err:  # rosbags raises many kinds on a truncated or corrupt file
-            raise BagError(f'bag {bag} is corrupt after {frames} images ({err}); '
-                           f'what was read before is in the output') from None
         finally:
             bar.close()
             if writer:
@@ -157,6 +152,22 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
     return ReplayResult(estimate, truth, dict(vo.counters), warnings, frames)
 
 
+def _read(reader: Any, connections: list, bag: str | Path) -> Iterator[tuple[Any, Any]]:
+    """(connection, message) pairs; an error while reading the bag is BagError."""
+    messages, count = reader.messages(connections=connections), 0
+    while True:
+        try:
+            conn, _, raw = next(messages)
+            msg = reader.deserialize(raw, conn.msgtype)
+        except StopIteration:
+            return
+        except Exception as err:  # rosbags raises many kinds on a truncated or corrupt file
+            raise BagError(f'bag {bag} is corrupt after {count} messages ({type(err).__name__}'
+                           f': {err}); what was read before is in the output') from None
+        count += 1
+        yield conn, msg
+
+
 def _process(vo: VisualOdometry, msg: Any, estimate: Trajectory, writer: BagWriter | None,
              params: dict[str, Any], warnings: list[str]) -> None:
     try:
@@ -164,7 +175,14 @@ def _process(vo: VisualOdometry, msg: Any, estimate: Trajectory, writer: BagWrit
     except ImageError as err:
         _warn_once(warnings, f'image skipped: {err}')
         return
-    result = vo.process(gray, stamp_to_seconds(msg.header.stamp))
+    stamp = stamp_to_seconds(msg.header.stamp)
+    try:
+        result = vo.process(gray, stamp)
+    except Exception as err:  # noqa: BLE001 - a bug: the odometry restored its state
+        vo.counters['errors'] = vo.counters.get('errors', 0) + 1
+        _warn_once(warnings, f'unexpected {type(err).__name__}: {err} (first at stamp '
+                   f'{stamp:.6f}; image skipped, please report this line)')
+        return
     if result.message:
         _warn_once(warnings, result.message)
     estimate.add(result.stamp, result.pose)
@@ -253,6 +271,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print('planar_vo_replay: interrupted', file=sys.stderr)
         return 130
+    except Exception as err:  # noqa: BLE001 - a bug: one line, never a traceback
+        print(f'planar_vo_replay: internal error: {type(err).__name__}: {err} (please '
+              'report this line)', file=sys.stderr)
+        return 1
     if args.json:
         print(json.dumps(summary, indent=2))
     else:

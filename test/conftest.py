@@ -1,7 +1,10 @@
 """Shared fixtures: synthetic planar scenes with known motion."""
 
+import os
+
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, settings
 
 from planar_vo.camera import CameraModel, Mounting
 
@@ -79,3 +82,12 @@ def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, came
             image, stamp = corrupt(k, image, stamp)
         results.append(vo.process(image, stamp))
     return results, np.c_[traj.x, traj.y, traj.yaw]
+
+
+# Property-based tests (hypothesis): a fixed seed and a bounded number of examples by default,
+# so `make test` is reproducible and its run time bounded; HYPOTHESIS_PROFILE=dev explores more.
+settings.register_profile('ci', derandomize=True, database=None, deadline=None,
+                          max_examples=40, suppress_health_check=[HealthCheck.too_slow])
+settings.register_profile('dev', deadline=None, max_examples=1000,
+                          suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'ci'))

@@ -83,3 +83,41 @@ def test_tilted_camera_gives_the_level_camera_answer():
 def test_virtual_axle_camera_sees_ground_points_like_a_level_camera():
     rays = level_to_base(np.array([[4.0, 1.0]]), 1.2)
     assert rays.tolist() == [[-1.0, 1.2, 4.0]]  # left of the axle is -x in the optical frame
+
+
+K640 = [[460.0, 0, 320], [0, 460.0, 240], [0, 0, 1]]
+
+
+@pytest.mark.parametrize('K, D, size, reason', [
+    ([[460.0, 0, 1e308], [0, 460, 240], [0, 0, 1]], [], (640, 480), 'principal point'),
+    ([[1e-12, 0, 320], [0, 1e-12, 240], [0, 0, 1]], [], (640, 480), 'implausible'),
+    ([[460.0, 0, 320], [0, 460, 240], [0, 0, 1]], [], (99999, 480), 'outside 1..16384'),
+    ([[460.0, 0, 320], [0, 46, 240], [0, 0, 1]], [], (640, 480), 'aspect ratio'),
+    ([[460.0, 200, 320], [0, 460, 240], [0, 0, 1]], [], (640, 480), 'skew'),
+    ([[460.0, 0, 320], [0, 460, 240], [0, 0, 2]], [], (640, 480), 'last row'),
+    ([[np.nan, 0, 320], [0, 460, 240], [0, 0, 1]], [], (640, 480), 'uncalibrated'),
+    (K640, [np.nan, 0.0, 0.0, 0.0, 0.0], (640, 480), 'not all finite'),
+])
+def test_implausible_calibrations_are_refused_with_the_reason(K, D, size, reason):
+    with pytest.raises(CameraModelError, match=reason):
+        CameraModel(K=np.array(K), D=D, width=size[0], height=size[1])
+
+
+def test_a_lens_model_that_cannot_be_inverted_over_the_ground_is_refused(car_camera):
+    from planar_vo.odometry import VisualOdometry
+    good, mounting = car_camera
+    good = CameraModel(good.K, good.D, 'plumb_bob', 640, 480)
+    vo = VisualOdometry(good, mounting)
+    # Random 8-coefficient plumb_bob (a broken driver): the distortion folds over in the
+    # image, so no undistortion can be trusted there. OpenCV's own projection says so:
+    D = np.array([0.095, 0.054, -0.015, 0.108, -0.15, 0.136, -0.006, -0.054])
+    bad = CameraModel(good.K, D, 'plumb_bob', 640, 480)
+    error = bad.round_trip_px(np.array([[4.0, 464.0]]))
+    assert error[0] > 100  # independent evidence: undistort/distort misses by far
+    with pytest.raises(CameraModelError, match='cannot be inverted over the ground'):
+        vo.set_camera(bad)
+    assert vo.camera is good  # refused atomically: nothing of the bad model stays
+    with pytest.raises(CameraModelError, match='cannot be inverted'):
+        VisualOdometry(bad, mounting)
+    # The strong but real distortion of the rendered bags passes the same check.
+    assert good.round_trip_px(np.array([[4.0, 464.0], [636.0, 476.0]])).max() < 1e-3

@@ -237,3 +237,47 @@ def test_debug_image_colours(gray):
     bgr = np.frombuffer(msg.data, np.uint8).reshape(H, W, 3)
     assert bgr[20, 13, 1] > 100 and bgr[20, 13, 2] < 50  # green ring around the inlier
     assert bgr[30, 43, 2] > 100 and bgr[30, 43, 1] < 50  # red ring around the outlier
+
+
+def test_a_hostile_step_allocates_nothing_the_message_does_not_hold(gray):
+    import tracemalloc
+    # One row and a 2 GB step: the row is all the data there is (the last row's padding
+    # may be left out), so it decodes; before, the missing padding was allocated.
+    msg = Image(height=1, width=W, encoding='mono8', step=2**31 - 1)
+    msg.data = gray[0].tobytes()
+    tracemalloc.start()
+    out = messages.image_to_gray(msg)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 1_000_000
+    np.testing.assert_array_equal(out[0], gray[0])
+    msg.height = 2  # now the data cannot hold it: refused, also without allocating
+    with pytest.raises(ImageError, match=f'image data has {W} bytes'):
+        messages.image_to_gray(msg)
+
+
+@pytest.mark.parametrize('width, height, encoding, data, reason', [
+    (0, 240, 'mono8', b'', 'empty'),
+    (65535, 1, 'mono8', bytes(65535), 'over the limit of 16384'),
+    (640, 480, 'mono8', bytes(640 * 480 + 1), 'width, height, step or encoding is wrong'),
+    (5, 2, 'yuv422', bytes(20), 'width must be even'),
+])
+def test_image_limits(width, height, encoding, data, reason):
+    row = {'mono8': 1, 'yuv422': 2}[encoding] * width
+    msg = Image(height=height, width=width, encoding=encoding, step=row)
+    msg.data = data
+    with pytest.raises(ImageError, match=reason):
+        messages.image_to_gray(msg)
+
+
+def test_camera_info_needs_its_size_and_finite_matrices():
+    info = CameraInfo(width=640, height=480, distortion_model='plumb_bob')
+    info.k = [460.0, 0.0, 320.0, 0.0, 461.0, 240.0, 0.0, 0.0, 1.0]
+    info.p = [460.0, 0.0, 320.0, 0.0, 0.0, 461.0, 240.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    assert messages.camera_info_to_model(info).width == 640
+    info.p[0] = math.nan
+    with pytest.raises(CameraModelError, match='P = .* not all finite'):
+        messages.camera_info_to_model(info)
+    info.p[0], info.width, info.height = 460.0, 0, 0
+    with pytest.raises(CameraModelError, match='no image size'):
+        messages.camera_info_to_model(info)

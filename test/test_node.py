@@ -441,14 +441,26 @@ def test_bad_inputs_leave_the_node_alive(ros, feeder, node_b):
         info.k = np.zeros(9)
         feeder.info_pub.publish(info)
     wait_for(lambda: 'camera_info refused' in node_b.output, 10, 'the K warning')
-    assert feeder.good() is not None
-    # Blank frames: odom still comes for each, with the held pose.
+    assert 'uncalibrated' in node_b.output  # the reason, not only the refusal
+    # The good camera was kept: the next frames are estimated as before (small twist
+    # variance; README: 1e3 when a frame gives no estimate).
+    feeder.good()
+    before = feeder.good()
+    assert before.twist.covariance[0] < 1.0
+    # Blank frames: odom still comes for each, with the held pose, its covariance growing
+    # with the time the vehicle may have moved unseen, and the lost-twist variance.
+    held = []
     for _ in range(5):
         feeder.ns += 10**9 // 30
         blank = gray_to_image(np.full((480, 640), 7, np.uint8), image_cls=Image)
         blank.header.stamp.sec, blank.header.stamp.nanosec = divmod(feeder.ns, 10**9)
-        send_lockstep(feeder.image_pub, feeder.info_pub, feeder.bag.info, blank,
-                      feeder.odoms, retries=3)
+        held.append(send_lockstep(feeder.image_pub, feeder.info_pub, feeder.bag.info, blank,
+                                  feeder.odoms, retries=3))
+    for odom in held:
+        assert odom.pose.pose == before.pose.pose
+        assert odom.twist.covariance[0] == 1e3 and odom.twist.covariance[35] == 1e3
+    variances = [before.pose.covariance[0]] + [odom.pose.covariance[0] for odom in held]
+    assert all(b > a for a, b in zip(variances, variances[1:])), variances
     assert feeder.good() is not None
     # Stamps jumping backwards.
     feeder.ns -= 5 * 10**9
@@ -481,11 +493,13 @@ def test_debug_image(ros, feeder):
 
 
 def test_node_b_warned_once_per_cause_and_exits_cleanly(node_b):
-    assert node_b.stop() == 0
+    code = node_b.stop()
     out = node_b.output
+    assert code == 0, out
     assert 'Traceback' not in out, out
     for cause in ('no valid camera_info', "'32FC1' is not supported", 'camera_info refused',
-                  'blank image skipped', 'time jumped by', 'image data has 100 bytes'):
+                  'blank image skipped', 'time jumped (stamp went backwards',
+                  'image data has 100 bytes'):
         assert out.count(cause) == 1, f'{cause!r} logged {out.count(cause)} times:\n{out}'
     assert out.count('tf2_ros is not installed') <= 1
 

@@ -1,0 +1,109 @@
+"""``planar_vo_soak``: a long run of the node over DDS, watching answers and memory.
+
+The bag's frames are played forward, then backward, again and again, restamped at a fixed
+rate so stamps always increase, into a ``planar_vo_node`` subprocess. Every few thousand
+frames it prints how many were answered with odometry and the node's resident memory; at
+the end, the memory growth after the warm-up. Run by ``make soak`` (not part of make test).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from planar_vo.bag import BagError
+from planar_vo.live import BagStream, LiveError, LiveSession
+
+__all__ = ['main']
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def resident_mb(pid: int) -> float:
+    """Resident memory (VmRSS) of process ``pid``, MB."""
+    for line in Path(f'/proc/{pid}/status').read_text().splitlines():
+        if line.startswith('VmRSS:'):
+            return int(line.split()[1]) / 1024
+    raise LiveError(f'no VmRSS for process {pid}')
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog='planar_vo_soak', description='Play a bag forward and backward into '
+        'planar_vo_node over loopback DDS for a long time; print frames answered and the '
+        "node's resident memory over time.")
+    p.add_argument('bag', nargs='?', default=str(ROOT / 'bags' / 'default'))
+    p.add_argument('--frames', type=int, default=20000, help='frames to send (default 20000)')
+    p.add_argument('--rate', type=float, default=60.0, help='frames per second (default 60)')
+    p.add_argument('--warm-up', type=int, default=2000,
+                   help='frames after which memory growth is measured (default 2000)')
+    p.add_argument('--every', type=int, default=2000, help='report every N frames')
+    p.add_argument('--params', default=str(ROOT / 'config' / 'planar_vo.yaml'))
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point; returns 0 when at least 99 % of frames were answered."""
+    args = _parser().parse_args(argv)
+    if args.frames <= args.warm_up or args.rate <= 0:
+        print('planar_vo_soak: error: --frames must exceed --warm-up and --rate be positive',
+              file=sys.stderr)
+        return 2
+    try:
+        stream = BagStream.read(args.bag)
+    except BagError as err:
+        print(f'planar_vo_soak: error: {err}', file=sys.stderr)
+        return 2
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import CameraInfo, Image
+    images = [deserialize_message(raw, Image) for _, raw, _ in stream.frames]
+    info = deserialize_message(stream.frames[0][2], CameraInfo)
+    order = list(range(len(images))) + list(range(len(images) - 2, 0, -1))  # ping-pong
+    session = LiveSession(args.params, image_type=stream.image_type)
+    try:
+        session.wait_connected()
+        session.handshake(stream.frames[0])
+        session.reset()
+        start_ns = int(time.time()) * 10**9
+        period_ns = int(round(1e9 / args.rate))
+        t0, rows, warm_mb = time.perf_counter(), [], None
+        print(f'{"frames":>7} {"answered":>9} {"resident MB":>12} {"elapsed s":>10}')
+        for i in range(args.frames):
+            due = t0 + i / args.rate
+            while time.perf_counter() < due:
+                time.sleep(min(0.001, max(due - time.perf_counter(), 0.0)))
+            msg = images[order[i % len(order)]]
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(
+                start_ns + i * period_ns, 10**9)
+            info.header.stamp = msg.header.stamp
+            session.info_pub.publish(info)
+            session.image_pub.publish(msg)
+            done = i + 1
+            if done % args.every == 0 or done == args.frames:
+                if done == args.frames:
+                    session.wait_for((start_ns + i * period_ns) / 1e9, 5.0)
+                mb = resident_mb(session.proc.pid)
+                if done >= args.warm_up and warm_mb is None:
+                    warm_mb = mb
+                rows.append((done, len(session.received), mb))
+                print(f'{done:7d} {len(session.received):9d} {mb:12.1f} '
+                      f'{time.perf_counter() - t0:10.1f}', flush=True)
+        answered = len(session.received)
+    except LiveError as err:
+        print(f'planar_vo_soak: error: {err}', file=sys.stderr)
+        return 2
+    finally:
+        status = session.close()
+    share = answered / args.frames
+    growth = rows[-1][2] - warm_mb
+    print(f'{args.frames} frames at {args.rate:g} Hz: {answered} answered ({100 * share:.2f} %);'
+          f' resident memory {rows[0][2]:.1f} MB at {rows[0][0]} frames, {warm_mb:.1f} MB '
+          f'after the warm-up, {rows[-1][2]:.1f} MB at the end (growth {growth:+.1f} MB); '
+          f'node exit status {status}')
+    return 0 if share >= 0.99 and status == 0 else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())
