@@ -94,6 +94,9 @@ def main(argv: list[str] | None = None) -> int:
     except LiveError as err:
         print(f'planar_vo_soak: error: {err}', file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print('planar_vo_soak: interrupted', file=sys.stderr)
+        return 130
     finally:
         status = session.close()
     share = answered / args.frames

@@ -442,10 +442,13 @@ def test_bad_inputs_leave_the_node_alive(ros, feeder, node_b):
         feeder.info_pub.publish(info)
     wait_for(lambda: 'camera_info refused' in node_b.output, 10, 'the K warning')
     assert 'uncalibrated' in node_b.output  # the reason, not only the refusal
-    # The good camera was kept: the next frames are estimated as before (small twist
-    # variance; README: 1e3 when a frame gives no estimate).
-    feeder.good()
-    before = feeder.good()
+    # The good camera was kept: frames are estimated again (small twist variance; README:
+    # 1e3 when a frame gives no estimate) within a few frames (the 32FC1 frames above each
+    # took a frame of the bag, and a lost frame costs up to two more).
+    for _ in range(6):
+        before = feeder.good()
+        if before.twist.covariance[0] < 1.0:
+            break
     assert before.twist.covariance[0] < 1.0
     # Blank frames: odom still comes for each, with the held pose, its covariance growing
     # with the time the vehicle may have moved unseen, and the lost-twist variance.
