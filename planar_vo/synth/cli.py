@@ -98,16 +98,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rad, positive looks left (default: the scenario's, 0 except "
                         'car -0.7 deg, rough 0.8 deg)')
     p.add_argument('--body-pitch', type=_nonneg, metavar='DEG',
-                   help='sprung body: peak |pitch|, degrees; 60 %% follows the longitudinal '
+                   help='sprung body: largest |pitch|, degrees (a drive reaches 60-90 %% of '
+                        'it); 60 %% follows the longitudinal '
                         'acceleration (dive when braking, squat when accelerating), 40 %% is '
                         "road vibration up to 3 Hz (default: the scenario's, 0 except car 1, "
                         'rough 2)')
     p.add_argument('--body-roll', type=_nonneg, metavar='DEG',
-                   help='sprung body: peak |roll|, degrees; 60 %% follows the lateral '
+                   help='sprung body: largest |roll|, degrees; 60 %% follows the lateral '
                         'acceleration v*omega (lean out of turns), 40 %% is road vibration '
                         "(default: the scenario's, 0 except car 0.6, rough 1.2)")
     p.add_argument('--bounce', type=_nonneg, metavar='M',
-                   help="sprung body: peak height change, m (default: the scenario's, 0 "
+                   help="sprung body: largest height change, m (default: the scenario's, 0 "
                         'except car 0.015, rough 0.03)')
     p.add_argument('--configured-error', type=_mounting_error, metavar='NAME=VALUE,...',
                    help='write to --params-out a mounting that is off the rendered one by '
