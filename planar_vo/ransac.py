@@ -20,7 +20,7 @@ from planar_vo.camera import CameraModel, Mounting, level_to_base
 from planar_vo.solvers import homography_npoint, paper_to_planar
 
 __all__ = ['TransferModel', 'RansacResult', 'PoseEstimationError', 'estimate_motion',
-           'refine_motion', 'transfer_errors', 'circular_motion']
+           'refine_motion', 'motion_covariance', 'transfer_errors', 'circular_motion']
 
 
 class PoseEstimationError(RuntimeError):
@@ -212,7 +212,7 @@ def refine_motion(
 
     Returns:
         (motion (3,), covariance (3, 3) of (x, y, yaw), rms inlier error in pixels, inliers
-        (N,) bool). The covariance is ``sigma^2 (J^T J)^-1``, sigma from the residuals.
+        (N,) bool). The covariance is :func:`motion_covariance` of the inliers.
     """
     motion = np.asarray(motion, dtype=float).copy()
     p1_t, m2_t = np.ascontiguousarray(p1.T, dtype=float), np.ascontiguousarray(m2.T, dtype=float)
@@ -251,12 +251,63 @@ def refine_motion(
             predicted_drop = float(g @ step)
             break
     sum_squared = max(float(squared[inliers].sum()) + predicted_drop, 0.0)
-    sigma2 = max(sum_squared / max(2 * count - len(g), 1), 1e-14)
-    covariance = np.linalg.inv(JJt + 1e-15 * np.eye(len(g))) * sigma2
+    J_used, r_used = J[:, :, inliers], r[:, inliers]
+    if circular:
+        J_used = np.einsum('pq,pci->qci', G, J_used)
+    if predicted_drop:  # the residuals after the last (tiny) step, to first order
+        r_used = r_used + np.einsum('q,qci->ci', step, J_used)
+    covariance = motion_covariance(J_used, r_used, threshold2)
     if circular:
         covariance = G @ covariance @ G.T
     rms = model.focal_px * float(np.sqrt(sum_squared / count))
     return motion, covariance, rms, inliers
+
+
+def motion_covariance(J: np.ndarray, r: np.ndarray, threshold2: float = np.inf) -> np.ndarray:
+    """Covariance (P, P) of a least-squares motion from its inliers' residuals.
+
+    Args:
+        J: (P, 2, N) Jacobian of each inlier's residual with respect to the P parameters.
+        r: (2, N) residuals at the solution (normalized units).
+        threshold2: squared inlier threshold the residuals were selected with.
+
+    Two effects make the textbook ``sigma^2 (J^T J)^-1`` optimistic on real tracks, and both
+    are corrected here. The noise differs from point to point (distortion stretches it at
+    the image edges; far points are noisier on the ground), and the noisy points are the
+    ones with leverage: the sandwich ``H^-1 (sum_i g_i g_i^T) H^-1`` with each point's own
+    gradient ``g_i = J_i^T r_i`` follows the actual residuals instead of their average.
+    And inliers are the points whose residual is under the threshold, so their spread
+    underestimates the noise: for 2-D Gaussian residuals cut at radius ``tau`` the mean
+    square is ``2 sigma^2 (1 - a e^-a / (1 - e^-a))``, ``a = tau^2 / (2 sigma^2)``, which
+    is inverted for sigma.
+    """
+    n_params, n = J.shape[0], r.shape[1]
+    H_inv = np.linalg.inv(np.einsum('pci,qci->pq', J, J) + 1e-15 * np.eye(n_params))
+    dof = max(2 * n - n_params, 1)
+    scores = np.einsum('pci,ci->pi', J, r)  # (P, N) each point's gradient
+    meat = scores @ scores.T * (2 * n / dof)
+    floor = 1e-14 * np.einsum('pci,qci->pq', J, J)  # noise-free data: a tiny, valid matrix
+    return H_inv @ (meat + floor) @ H_inv * _truncation_inflation(
+        float(np.sum(r * r)) / dof, threshold2)
+
+
+def _truncation_inflation(mean_square: float, threshold2: float) -> float:
+    """How much larger the noise variance (per axis) is than ``mean_square``.
+
+    ``mean_square`` is the per-axis variance of residuals kept only inside the radius
+    ``sqrt(threshold2)``; the noise is taken as 2-D Gaussian.
+    """
+    if not np.isfinite(threshold2) or mean_square <= 0:
+        return 1.0
+    ratio = 1.0
+    for _ in range(30):  # fixed point; converges fast while sigma is well under tau
+        a = threshold2 / (2 * mean_square * ratio)
+        kept = 1.0 - a * np.exp(-a) / max(-np.expm1(-a), 1e-300)
+        new = 1.0 / max(kept, 0.25)
+        if abs(new - ratio) < 1e-4:
+            return new
+        ratio = new
+    return ratio
 
 
 def _circular_jacobian(rho: float, yaw: float) -> np.ndarray:

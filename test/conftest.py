@@ -1,5 +1,6 @@
 """Shared fixtures: synthetic planar scenes with known motion."""
 
+import functools
 import os
 
 import numpy as np
@@ -49,7 +50,8 @@ def synth_camera_model(renderer):
 
 
 def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, camera=None,
-                 suspension=None, mounting=None, configured=None, exposure=0.0, rate=30.0):
+                 suspension=None, mounting=None, configured=None, exposure=0.0, rate=30.0,
+                 twist=False):
     """Render a synthetic scenario and run the odometry core on it (no bag, no ROS).
 
     The images are rendered with ``mounting`` (default: the scenario's) on ``suspension``
@@ -58,7 +60,8 @@ def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, came
     the true one; default: the true one); ``overrides`` win. ``corrupt(k, image, stamp)``
     may replace frame k (image, stamp) to inject bad input. Frames are ``rate`` Hz apart;
     ``synth.render_scenario`` with the same arguments gives the trajectory with the true camera
-    pose of every frame. Returns (results, ground truth poses (N, 3)).
+    pose of every frame. Returns (results, ground truth poses (N, 3)), and with ``twist``
+    also the renderer's instantaneous body twist (vx, vy, yaw rate) at each stamp (N, 3).
     """
     from planar_vo import config, synth
     from planar_vo.odometry import VisualOdometry
@@ -81,7 +84,18 @@ def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, came
         if corrupt is not None:
             image, stamp = corrupt(k, image, stamp)
         results.append(vo.process(image, stamp))
-    return results, np.c_[traj.x, traj.y, traj.yaw]
+    poses = np.c_[traj.x, traj.y, traj.yaw]
+    if twist:
+        return results, poses, np.c_[traj.v, getattr(traj, 'vy', np.zeros_like(traj.v)),
+                                     traj.omega]
+    return results, poses
+
+
+@functools.cache
+def drive(scenario, frames, rate):
+    """:func:`run_scenario` with the true twist, run once per session (tests share it:
+    pass the same arguments, positionally)."""
+    return run_scenario(scenario, frames, rate=rate, twist=True)
 
 
 # Property-based tests (hypothesis): a fixed seed and a bounded number of examples by default,

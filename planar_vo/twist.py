@@ -1,0 +1,115 @@
+"""The body twist at the image stamp, from the motions measured between frames.
+
+A frame-to-frame motion gives the *mean* twist over its interval, which is the twist at
+the interval's middle, half a frame before the stamp: a filter reading it as the twist at
+the stamp sees a biased speed whenever the vehicle accelerates. :class:`TwistAtStamp`
+extrapolates the last two mean twists to the stamp (constant acceleration), and its
+covariance is the measurement noise carried through that extrapolation plus what the
+model does not know: the acceleration while only one interval is known, the jerk after.
+Numpy only; no ROS.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ['TwistAtStamp', 'mean_twist', 'twist_motion']
+
+# What a car may do that a constant-acceleration extrapolation cannot see, per axis of
+# (vx, vy, yaw rate): its acceleration (m/s², rad/s²) and jerk (m/s³, rad/s³). Generous:
+# hard braking is ~8 m/s², a comfortable jerk ~1-2 m/s³; the rendered drives reach 4 m/s³.
+_ACCELERATION = np.array([4.0, 1.0, 1.0])
+_JERK = np.array([4.0, 1.0, 2.0])
+
+
+def mean_twist(motion: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The constant body twist (vx, vy, yaw rate) that moves by ``motion`` in ``dt``.
+
+    The SE(2) logarithm over ``dt``: for circular motion (a car's rear axle) the speed
+    along the arc, not the chord, and no sideways velocity. Returns the twist (3,) and its
+    Jacobian (3, 3) with respect to ``motion`` (x, y, yaw).
+    """
+    x, y, yaw = motion
+    half = 0.5 * yaw
+    # V^-1 of the SE(2) exponential: (yaw / 2) [[cot(yaw/2), 1], [-1, cot(yaw/2)]].
+    k = 1.0 - half * half / 3.0 if abs(half) < 1e-4 else half / np.tan(half)
+    v_inv = np.array([[k, half], [-half, k]])
+    # d k / d yaw, for the Jacobian (small-angle series near zero).
+    dk = -half / 3.0 if abs(half) < 1e-4 else 0.5 * (
+        1.0 / np.tan(half) - half / np.sin(half) ** 2)
+    d_yaw = np.array([dk * x + 0.5 * y, -0.5 * x + dk * y])
+    jac = np.zeros((3, 3))
+    jac[:2, :2], jac[:2, 2], jac[2, 2] = v_inv, d_yaw, 1.0
+    return np.append(v_inv @ np.array([x, y]), yaw) / dt, jac / dt
+
+
+def twist_motion(twist: np.ndarray, dt: float) -> np.ndarray:
+    """The motion (x, y, yaw) a constant body twist makes in ``dt``: the SE(2) exponential."""
+    vx, vy, rate = twist
+    yaw = rate * dt
+    if abs(yaw) < 1e-9:
+        return np.array([vx * dt, vy * dt, yaw])
+    s, c = np.sin(yaw), np.cos(yaw)
+    return np.array([(s * vx - (1 - c) * vy) / rate, ((1 - c) * vx + s * vy) / rate, yaw])
+
+
+@dataclass(frozen=True)
+class _Step:
+    start: float
+    end: float
+    twist: np.ndarray  # (3,) mean over [start, end]
+    covariance: np.ndarray  # (3, 3)
+
+
+class TwistAtStamp:
+    """Twist at the end of the last measured interval, extrapolated with constant acceleration."""
+
+    def __init__(self, *, acceleration: np.ndarray = _ACCELERATION,
+                 jerk: np.ndarray = _JERK) -> None:
+        self.acceleration = np.asarray(acceleration, dtype=float)
+        self.jerk = np.asarray(jerk, dtype=float)
+        self._steps: list[_Step] = []
+
+    def reset(self) -> None:
+        """Forget the history (tracking restarted: the next interval is not adjacent)."""
+        self._steps = []
+
+    def add(self, start: float, end: float, motion: np.ndarray,
+            motion_covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Add the motion measured over ``[start, end]`` (s); return the twist at ``end``.
+
+        Returns the twist (3,) and its covariance (3, 3).
+        """
+        dt = max(end - start, 1e-6)
+        twist, jac = mean_twist(np.asarray(motion, dtype=float), dt)
+        step = _Step(start, end, twist, jac @ motion_covariance @ jac.T)
+        adjacent = self._steps and abs(self._steps[-1].end - start) < 1e-6 * max(1.0, dt)
+        self._steps = [self._steps[-1], step] if adjacent else [step]
+        return self._extrapolate()
+
+    def _extrapolate(self) -> tuple[np.ndarray, np.ndarray]:
+        last = self._steps[-1]
+        if len(self._steps) == 1:
+            # The mean is the twist half an interval ago; the acceleration since is unknown.
+            lag = 0.5 * (last.end - last.start)
+            return last.twist, last.covariance + np.diag((self.acceleration * lag) ** 2)
+        prev = self._steps[0]
+        # Interval means sit at the midpoints (exact for constant acceleration): extend the
+        # line through them to the end of the last interval.
+        mid_last, mid_prev = 0.5 * (last.start + last.end), 0.5 * (prev.start + prev.end)
+        a = (last.end - mid_last) / (mid_last - mid_prev)
+        twist = (1 + a) * last.twist - a * prev.twist
+        # A constant jerk j makes the line miss by j * miss (twist(t) = j t^2 / 2, t = 0 at
+        # the stamp): mean of t^2 / 2 over each interval, extrapolated the same way.
+        miss = (1 + a) * _mean_half_square(last.start - last.end, 0.0) - a * _mean_half_square(
+            prev.start - last.end, prev.end - last.end)
+        covariance = ((1 + a) ** 2 * last.covariance + a ** 2 * prev.covariance
+                      + np.diag((self.jerk * miss) ** 2))
+        return twist, covariance
+
+
+def _mean_half_square(t0: float, t1: float) -> float:
+    """Mean of t^2 / 2 over [t0, t1]."""
+    return (t1 ** 3 - t0 ** 3) / (6.0 * (t1 - t0))
