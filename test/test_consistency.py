@@ -14,11 +14,19 @@ import pytest
 from test.conftest import drive
 from test.ekf import PlanarEkf
 
-# (scenario, frames, rate): the four rendered drives at 30 Hz, and the bundled bag's
-# scenario at its 15 Hz (faster motion per frame, larger speed changes).
-SCENARIOS = [('straight', 150, 30.0), ('gentle', 150, 30.0), ('tight', 150, 30.0),
-             ('obstacles', 150, 30.0), ('default', 90, 15.0)]
-IDS = [f'{name}@{rate:g}Hz' for name, _, rate in SCENARIOS]
+# The sprung bodies pitch by up to 1-2 deg, which the odometry does not estimate yet (the
+# attitude work in the refinement): the speed is 2-4 % off, far outside any covariance from
+# the pixel residuals (measured twist NEES 250 on `car`, 460 on `rough`). Strict: once the
+# attitude is estimated these pass, and the mark must go.
+_SPRUNG = pytest.mark.xfail(strict=True, reason='body attitude not estimated yet')
+# (scenario, frames, rate): the four rigid drives at 30 Hz, the bundled bag's scenario at
+# its 15 Hz (faster motion per frame, larger speed changes), and the sprung car bodies.
+SCENARIOS = [
+    pytest.param(name, frames, rate, id=f'{name}@{rate:g}Hz',
+                 marks=_SPRUNG if name in ('car', 'rough') else ())
+    for name, frames, rate in [('straight', 150, 30.0), ('gentle', 150, 30.0),
+                               ('tight', 150, 30.0), ('obstacles', 150, 30.0),
+                               ('default', 90, 15.0), ('car', 150, 30.0), ('rough', 150, 30.0)]]
 UNMEASURED = 1.0
 
 
@@ -41,7 +49,7 @@ def measured(result):
     return result.twist_covariance.diagonal().max() < UNMEASURED
 
 
-@pytest.mark.parametrize('scenario, frames, rate', SCENARIOS, ids=IDS)
+@pytest.mark.parametrize('scenario, frames, rate', SCENARIOS)
 def test_twist_is_consistent_with_the_true_twist_at_the_stamp(scenario, frames, rate):
     results, _, twist = drive(scenario, frames, rate)
     values = [nees(r.twist - twist[k], r.twist_covariance)
@@ -50,7 +58,7 @@ def test_twist_is_consistent_with_the_true_twist_at_the_stamp(scenario, frames, 
     assert 1.0 <= np.mean(values) <= 6.0, np.mean(values)
 
 
-@pytest.mark.parametrize('scenario, frames, rate', SCENARIOS, ids=IDS)
+@pytest.mark.parametrize('scenario, frames, rate', SCENARIOS)
 def test_pose_increments_over_one_second_are_consistent(scenario, frames, rate):
     """The covariance of the motion from frame k to frame k + rate, as a user gets it
     from the two published pose covariances (first-order SE(2) composition undone)."""
@@ -76,7 +84,7 @@ def step_mean_vx(pose_a, pose_b, dt):
     return np.hypot(*relative(pose_a, pose_b)[:2]) / dt
 
 
-@pytest.mark.parametrize('scenario, frames, rate', SCENARIOS, ids=IDS)
+@pytest.mark.parametrize('scenario, frames, rate', SCENARIOS)
 def test_twist_at_the_stamp_removes_the_lag_without_much_more_noise(scenario, frames, rate):
     """Against the truth at the stamp, the published vx beats the step mean wherever the
     speed changes; its own error stays within 2x the step mean's noise (its error against
@@ -100,7 +108,7 @@ def test_twist_at_the_stamp_removes_the_lag_without_much_more_noise(scenario, fr
 
 
 @pytest.mark.parametrize('wheels', [False, True], ids=['vo', 'vo+wheels'])
-@pytest.mark.parametrize('scenario, frames, rate', SCENARIOS, ids=IDS)
+@pytest.mark.parametrize('scenario, frames, rate', SCENARIOS)
 def test_a_filter_fusing_the_twist_stays_consistent(scenario, frames, rate, wheels):
     """A constant-velocity planar EKF (white acceleration, as robot_localization's
     default model) fuses the published twist at every stamp, and with ``wheels`` also a
