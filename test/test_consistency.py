@@ -86,11 +86,12 @@ def step_mean_vx(pose_a, pose_b, dt):
 
 @pytest.mark.parametrize('scenario, frames, rate', SCENARIOS)
 def test_twist_at_the_stamp_removes_the_lag_without_much_more_noise(scenario, frames, rate):
-    """Against the truth at the stamp, the published vx beats the step mean wherever the
-    speed changes; its own error stays within 2x the step mean's noise (its error against
-    the true step mean): extrapolating to the stamp costs some noise and, at 15 Hz, the
-    jerk it cannot see (measured 1.2-1.8x; the issue asks 1.5x, not met at 15 Hz and on
-    the tight turns)."""
+    """Against the truth at the stamp, the published vx is never worse than 1.5x the step
+    mean (the issue's bar; on the constant-speed drive, where the step mean is right, it is
+    1.2x) and beats it wherever the speed changes. Its error also stays within 2x the step
+    mean's noise (the step mean against the true step mean): extrapolating to the stamp
+    costs some noise and, at 15 Hz, the jerk it cannot see (measured 1.2-1.6x at 30 Hz,
+    1.9x at 15 Hz)."""
     results, truth, twist = drive(scenario, frames, rate)
     published, noise, lagged = [], [], []
     for k in range(1, frames):
@@ -101,10 +102,11 @@ def test_twist_at_the_stamp_removes_the_lag_without_much_more_noise(scenario, fr
         published.append(abs(results[k].twist[0] - twist[k, 0]))
         noise.append(abs(mean_vx - step_mean_vx(truth[k - 1], truth[k], dt)))
         lagged.append(abs(mean_vx - twist[k, 0]))
-    assert np.median(published) <= 2.0 * np.median(noise), (np.median(published),
-                                                            np.median(noise))
+    published, noise, lagged = np.median(published), np.median(noise), np.median(lagged)
+    assert published <= 1.5 * lagged, (published, lagged)
+    assert published <= 2.0 * noise, (published, noise)
     if np.ptp(twist[:, 0]) > 0.5:  # the speed changes: the step mean lags behind
-        assert np.median(published) < 0.8 * np.median(lagged)
+        assert published < 0.8 * lagged, (published, lagged)
 
 
 @pytest.mark.parametrize('wheels', [False, True], ids=['vo', 'vo+wheels'])
