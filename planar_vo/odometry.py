@@ -354,8 +354,9 @@ class VisualOdometry:
         """Compose the motion measured since the reference; the twist at the new stamp."""
         self.pose, self.pose_covariance = compose(
             self.pose, self.pose_covariance, motion, motion_cov * _MOTION_ERROR_PERSISTENCE)
-        self.twist, self.twist_covariance = self._twist_at_stamp.add(
+        self._twist_at_stamp = self._twist_at_stamp.add(
             self._ref_stamp, self._ref_stamp + dt, motion, motion_cov)
+        self.twist, self.twist_covariance = self._twist_at_stamp.estimate()
 
     def _restart(self, stamp: float, *, extrapolate: bool) -> None:
         """Restart tracking; the pose keeps going but is distrusted.
@@ -373,7 +374,7 @@ class VisualOdometry:
         else:
             self.pose_covariance = self.pose_covariance + np.diag(_RESTART_VARIANCE)
         self.twist_covariance = np.eye(3) * _LOST_TWIST_VARIANCE
-        self._twist_at_stamp.reset()  # the next measured interval starts here
+        self._twist_at_stamp = TwistAtStamp()  # the next measured interval starts here
         self._failed_frames = 0
         self.tracker.reset()
         self._ref_stamp = stamp

@@ -11,7 +11,7 @@ Numpy only; no ROS.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -20,8 +20,8 @@ __all__ = ['TwistAtStamp', 'mean_twist', 'twist_motion']
 # What a car may do that a constant-acceleration extrapolation cannot see, per axis of
 # (vx, vy, yaw rate): its acceleration (m/s², rad/s²) and jerk (m/s³, rad/s³). Generous:
 # hard braking is ~8 m/s², a comfortable jerk ~1-2 m/s³; the rendered drives reach 4 m/s³.
-_ACCELERATION = np.array([4.0, 1.0, 1.0])
-_JERK = np.array([4.0, 1.0, 2.0])
+_ACCELERATION = (4.0, 1.0, 1.0)
+_JERK = (4.0, 1.0, 2.0)
 
 
 def mean_twist(motion: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -63,39 +63,40 @@ class _Step:
     covariance: np.ndarray  # (3, 3)
 
 
+@dataclass(frozen=True)
 class TwistAtStamp:
-    """Twist at the end of the last measured interval, extrapolated with constant acceleration."""
+    """Twist at the end of the last measured interval, extrapolated with constant acceleration.
 
-    def __init__(self, *, acceleration: np.ndarray = _ACCELERATION,
-                 jerk: np.ndarray = _JERK) -> None:
-        self.acceleration = np.asarray(acceleration, dtype=float)
-        self.jerk = np.asarray(jerk, dtype=float)
-        self._steps: list[_Step] = []
+    Immutable: :meth:`add` returns the new state, so a caller can keep or drop it.
+    """
 
-    def reset(self) -> None:
-        """Forget the history (tracking restarted: the next interval is not adjacent)."""
-        self._steps = []
+    steps: tuple[_Step, ...] = ()  # the last two measured intervals, oldest first
+    acceleration: tuple[float, float, float] = _ACCELERATION
+    jerk: tuple[float, float, float] = _JERK
 
     def add(self, start: float, end: float, motion: np.ndarray,
-            motion_covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Add the motion measured over ``[start, end]`` (s); return the twist at ``end``.
+            motion_covariance: np.ndarray) -> TwistAtStamp:
+        """The state after the motion (x, y, yaw) measured over ``[start, end]`` (s).
 
-        Returns the twist (3,) and its covariance (3, 3).
+        An interval that does not start where the last one ended (tracking restarted)
+        starts a new history.
         """
         dt = max(end - start, 1e-6)
         twist, jac = mean_twist(np.asarray(motion, dtype=float), dt)
         step = _Step(start, end, twist, jac @ motion_covariance @ jac.T)
-        adjacent = self._steps and abs(self._steps[-1].end - start) < 1e-6 * max(1.0, dt)
-        self._steps = [self._steps[-1], step] if adjacent else [step]
-        return self._extrapolate()
+        adjacent = self.steps and abs(self.steps[-1].end - start) < 1e-6 * max(1.0, dt)
+        return replace(self, steps=(self.steps[-1], step) if adjacent else (step,))
 
-    def _extrapolate(self) -> tuple[np.ndarray, np.ndarray]:
-        last = self._steps[-1]
-        if len(self._steps) == 1:
+    def estimate(self) -> tuple[np.ndarray, np.ndarray]:
+        """The twist (3,) at the end of the last interval and its covariance (3, 3)."""
+        if not self.steps:
+            raise ValueError('no interval measured yet')
+        last = self.steps[-1]
+        if len(self.steps) == 1:
             # The mean is the twist half an interval ago; the acceleration since is unknown.
             lag = 0.5 * (last.end - last.start)
-            return last.twist, last.covariance + np.diag((self.acceleration * lag) ** 2)
-        prev = self._steps[0]
+            return last.twist, last.covariance + np.diag((np.array(self.acceleration) * lag) ** 2)
+        prev = self.steps[0]
         # Interval means sit at the midpoints (exact for constant acceleration): extend the
         # line through them to the end of the last interval.
         mid_last, mid_prev = 0.5 * (last.start + last.end), 0.5 * (prev.start + prev.end)
@@ -106,7 +107,7 @@ class TwistAtStamp:
         miss = (1 + a) * _mean_half_square(last.start - last.end, 0.0) - a * _mean_half_square(
             prev.start - last.end, prev.end - last.end)
         covariance = ((1 + a) ** 2 * last.covariance + a ** 2 * prev.covariance
-                      + np.diag((self.jerk * miss) ** 2))
+                      + np.diag((np.array(self.jerk) * miss) ** 2))
         return twist, covariance
 
 

@@ -54,7 +54,8 @@ def test_extrapolation_is_exact_under_constant_acceleration_with_uneven_interval
     estimator = TwistAtStamp()
     stamps = [0.0, 0.05, 0.15, 0.2]
     for t0, t1 in zip(stamps, stamps[1:]):
-        twist, _ = estimator.add(t0, t1, integrate(twist_of_t, t0, t1), np.eye(3) * 1e-8)
+        estimator = estimator.add(t0, t1, integrate(twist_of_t, t0, t1), np.eye(3) * 1e-8)
+    twist, _ = estimator.estimate()
     np.testing.assert_allclose(twist, twist_of_t(0.2), atol=2e-5)
 
 
@@ -62,11 +63,11 @@ def test_jerk_term_is_the_extrapolation_error_of_a_quadratic_speed():
     """With speed t^2/2 (unit jerk) the extrapolation misses by -h^2/3 for equal intervals h
     (worked out by hand); the covariance carries exactly that for the configured jerk."""
     h = 0.1
-    jerk = np.array([2.0, 0.0, 0.0])
-    estimator = TwistAtStamp(jerk=jerk)
+    estimator = TwistAtStamp(jerk=(2.0, 0.0, 0.0))
     for t0 in (-2 * h, -h):
         motion = integrate(lambda t: np.array([10.0 + t * t, 0.0, 0.0]), t0, t0 + h)
-        twist, cov = estimator.add(t0, t0 + h, motion, np.eye(3) * 1e-12)
+        estimator = estimator.add(t0, t0 + h, motion, np.eye(3) * 1e-12)
+    twist, cov = estimator.estimate()
     assert twist[0] - 10.0 == pytest.approx(-2.0 * h * h / 3, rel=1e-3)
     assert np.sqrt(cov[0, 0]) == pytest.approx(2.0 * h * h / 3, rel=1e-3)
 
@@ -77,21 +78,22 @@ def test_covariance_matches_the_spread_of_noisy_extrapolations():
     truth = np.array([5.0, 0.0, 0.2])
     errors = []
     for _ in range(2000):
-        estimator = TwistAtStamp(jerk=np.zeros(3))
+        estimator = TwistAtStamp(jerk=(0.0, 0.0, 0.0))
         for t0 in (0.0, 1 / 30):
             motion = twist_motion(truth, 1 / 30) + rng.multivariate_normal(np.zeros(3),
                                                                            motion_cov)
-            twist, cov = estimator.add(t0, t0 + 1 / 30, motion, motion_cov)
+            estimator = estimator.add(t0, t0 + 1 / 30, motion, motion_cov)
+        twist, cov = estimator.estimate()
         errors.append(twist - truth)
     ratio = np.cov(np.array(errors).T).diagonal() / cov.diagonal()
     assert np.all((ratio > 0.85) & (ratio < 1.15)), ratio
 
 
 def test_a_gap_in_the_intervals_restarts_the_history():
-    estimator = TwistAtStamp()
-    estimator.add(0.0, 0.1, twist_motion(np.array([2.0, 0.0, 0.0]), 0.1), np.eye(3) * 1e-8)
+    estimator = TwistAtStamp().add(0.0, 0.1, twist_motion(np.array([2.0, 0.0, 0.0]), 0.1),
+                                   np.eye(3) * 1e-8)
     twist, cov = estimator.add(0.5, 0.6, twist_motion(np.array([4.0, 0.0, 0.0]), 0.1),
-                               np.eye(3) * 1e-8)
+                               np.eye(3) * 1e-8).estimate()
     assert twist[0] == pytest.approx(4.0)  # not a line through 2 m/s half a second ago
     assert cov[0, 0] > (4.0 * 0.05) ** 2 * 0.99  # the unknown acceleration over half a step
 
