@@ -45,7 +45,7 @@ _RESTART_VARIANCE = (1.0, 1.0, 0.1)  # m², m², rad² added when a time jump re
 # on the rendered drives the lag-1 correlation is 0.3-0.55 and dies out over ~5 frames,
 # with a scene-dependent bias of 0.1-0.3 sigma on top, so a sum of N motions has about
 # 4x the variance of N independent ones (pose NEES over 1 s windows 7-16 without this,
-# 1.7-4 with it, test_consistency). The pose accumulates each motion's covariance times
+# 1.6-4.4 with it, test_consistency). The pose accumulates each motion's covariance times
 # this; the twist, one motion at a time, does not.
 _MOTION_ERROR_PERSISTENCE = 4.0
 

@@ -134,3 +134,40 @@ def test_a_filter_fusing_the_twist_stays_consistent(scenario, frames, rate, whee
         pose_nees.append(nees(error, ekf.P[:3, :3]))
     assert 1.0 <= np.mean(twist_nees) <= 6.0, np.mean(twist_nees)
     assert np.mean(pose_nees) <= 6.0, np.mean(pose_nees)
+
+
+def odometry_twists(bag, topic):
+    """{stamp: (twist (3,), covariance (3, 3))} of the Odometry messages on ``topic``."""
+    from planar_vo.bag import open_reader
+
+    axes = [0, 1, 5]  # vx, vy, vyaw in the 6x6 (x, y, z, roll, pitch, yaw) layout
+    out = {}
+    with open_reader(bag) as reader:
+        conns = [c for c in reader.connections if c.topic == topic]
+        for c, _, raw in reader.messages(conns):
+            msg = reader.deserialize(raw, c.msgtype)
+            t = msg.twist.twist
+            cov = np.asarray(msg.twist.covariance).reshape(6, 6)[np.ix_(axes, axes)]
+            stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+            out[round(stamp, 6)] = (np.array([t.linear.x, t.linear.y, t.angular.z]), cov)
+    return out
+
+
+def test_bundled_bag_odometry_is_consistent_with_its_ground_truth_twist(tmp_path):
+    """As a user would check it: replay `bags/default` to a bag, read /odom back and compare
+    each twist message with /ground_truth/odom at the same stamp."""
+    from pathlib import Path
+
+    from planar_vo import config
+    from planar_vo.replay import replay
+
+    root = Path(__file__).resolve().parents[1]
+    replay(root / 'bags' / 'default', config.load_params_file(root / 'config' / 'planar_vo.yaml'),
+           output=tmp_path / 'odom')
+    published = odometry_twists(tmp_path / 'odom', '/odom')
+    truth = odometry_twists(root / 'bags' / 'default', '/ground_truth/odom')
+    assert len(published) == len(truth) == 90
+    values = [nees(twist - truth[stamp][0], cov) for stamp, (twist, cov) in published.items()
+              if cov.diagonal().max() < UNMEASURED]
+    assert len(values) >= 0.95 * len(published)
+    assert 1.0 <= np.mean(values) <= 6.0, np.mean(values)
