@@ -286,7 +286,8 @@ def _print_summary(summary: dict[str, Any], args: argparse.Namespace) -> None:
     c = summary['counters']
     print(f'{summary["images"]} images: {c["estimated"]} estimated, {c["no_estimate"]} not '
           f'estimated, {c["reinitialized"]} re-initialisations, {c["blank"]} blank, '
-          f'{c["time_jumps"]} time jumps')
+          f'{c["time_jumps"]} time jumps' + (f', {c["errors"]} unexpected errors (please '
+                                             'report)' if c.get('errors') else ''))
     for w in summary['warnings']:
         print(f'warning: {w}')
     acc = summary.get('accuracy')

@@ -442,6 +442,11 @@ def test_bad_inputs_leave_the_node_alive(ros, feeder, node_b):
         feeder.info_pub.publish(info)
     wait_for(lambda: 'camera_info refused' in node_b.output, 10, 'the K warning')
     assert 'uncalibrated' in node_b.output  # the reason, not only the refusal
+    # A different CameraInfo problem right after is reported at once (throttled per cause).
+    info = feeder.bag.info_msg()
+    info.d[0] = float('nan')
+    feeder.info_pub.publish(info)
+    wait_for(lambda: 'are not all finite' in node_b.output, 10, 'the D warning')
     # The good camera was kept: frames are estimated again (small twist variance; README:
     # 1e3 when a frame gives no estimate) within a few frames (the 32FC1 frames above each
     # took a frame of the bag, and a lost frame costs up to two more).
@@ -465,10 +470,13 @@ def test_bad_inputs_leave_the_node_alive(ros, feeder, node_b):
     variances = [before.pose.covariance[0]] + [odom.pose.covariance[0] for odom in held]
     assert all(b > a for a, b in zip(variances, variances[1:])), variances
     assert feeder.good() is not None
-    # Stamps jumping backwards.
+    # Stamps jumping backwards, then a gap: two causes, both reported.
     feeder.ns -= 5 * 10**9
     for _ in range(3):
         assert feeder.good() is not None
+    feeder.ns += 10 * 10**9
+    assert feeder.good() is not None
+    wait_for(lambda: 'over max_frame_gap' in node_b.output, 10, 'the gap warning')
     # Truncated data.
     def truncated_image():
         img = feeder.next_image()
@@ -502,7 +510,7 @@ def test_node_b_warned_once_per_cause_and_exits_cleanly(node_b):
     assert 'Traceback' not in out, out
     for cause in ('no valid camera_info', "'32FC1' is not supported", 'camera_info refused',
                   'blank image skipped', 'time jumped (stamp went backwards',
-                  'image data has 100 bytes'):
+                  'over max_frame_gap', 'are not all finite', 'image data has 100 bytes'):
         assert out.count(cause) == 1, f'{cause!r} logged {out.count(cause)} times:\n{out}'
     assert out.count('tf2_ros is not installed') <= 1
 

@@ -139,3 +139,24 @@ def test_blank_frame_after_a_gap_does_not_become_the_reference():
     assert results[30].status == 'blank'
     assert results[31].status == 'time_jump'
     assert [r.status for r in results[32:]] == ['ok'] * 8
+
+
+def test_an_exception_inside_process_leaves_the_state_as_it_was():
+    """A frame OpenCV cannot track (float pixels: a caller's bug) raises, and changes nothing."""
+    import cv2
+
+    from planar_vo.odometry import VisualOdometry
+    from test.test_properties import PARAMS, Frames
+    frames = Frames(6)
+    vo = VisualOdometry.from_params(frames.camera, PARAMS)
+    for k in range(3):
+        vo.process(frames.images[k], frames.stamps[k])
+    before = (vo.pose.copy(), vo.tracker.points.copy(), vo._last_stamp, dict(vo.counters))
+    with pytest.raises(cv2.error):
+        vo.process(frames.images[3].astype(np.float64), frames.stamps[3])
+    np.testing.assert_array_equal(vo.pose, before[0])
+    np.testing.assert_array_equal(vo.tracker.points, before[1])
+    assert vo._last_stamp == before[2] and vo.counters == before[3]
+    # ... so the next frames go on as if the bad one had never come.
+    assert [vo.process(frames.images[k], frames.stamps[k]).status for k in (3, 4, 5)] == [
+        'ok', 'ok', 'ok']

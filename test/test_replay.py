@@ -127,3 +127,24 @@ def test_corrupt_bag_is_a_clear_error(tmp_path, capsys):
     assert main([str(broken)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'planar_vo_replay: error:' in err[0]
+
+
+def test_an_error_while_processing_is_not_called_a_corrupt_bag(monkeypatch, capsys):
+    """A fault injected into the odometry (a bug, not the bag's): reported as such, the rest
+    of the bag is replayed, exit status 0."""
+    from planar_vo.odometry import VisualOdometry
+    real, calls = VisualOdometry._process, []
+
+    def fails_at_the_fifth_frame(self, gray, stamp):
+        calls.append(stamp)
+        if len(calls) == 5:
+            raise RuntimeError('injected fault')
+        return real(self, gray, stamp)
+
+    monkeypatch.setattr(VisualOdometry, '_process', fails_at_the_fifth_frame)
+    result = replay(BAG, config.load_params_file(PARAMS))
+    assert result.counters['errors'] == 1
+    assert [w for w in result.warnings if 'unexpected RuntimeError: injected fault' in w]
+    assert not [w for w in result.warnings if 'corrupt' in w]
+    assert len(result.estimate.stamps) == result.frames - 1
+    assert report(result)['accuracy']['scale_ratio'] == pytest.approx(1.0, abs=0.01)

@@ -1,0 +1,67 @@
+"""An unexpected exception inside a node callback: one ERROR line, a counter, no crash.
+
+The node runs in this process (real rclpy, its own Context and domain): a callback is
+handed something that is not an Image, as a bug elsewhere might, and the node must report
+it as an error of its own (not as bad input) and keep working.
+"""
+
+import os
+import threading
+import time
+
+import pytest
+
+
+@pytest.fixture
+def in_process_node(monkeypatch):
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(1 + (os.getpid() + 50) % 100))
+    monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    from planar_vo.node import PlanarVoNode
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = PlanarVoNode(context=ctx)
+    listener = rclpy.create_node('diagnostics_listener', context=ctx)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(node)
+    executor.add_node(listener)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    yield node, listener
+    executor.shutdown()
+    node.destroy_node()
+    listener.destroy_node()
+    rclpy.try_shutdown(context=ctx)
+    thread.join(5)
+
+
+def test_unexpected_exception_is_one_error_line_and_counted(in_process_node, capfd):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import CameraInfo
+
+    node, listener = in_process_node
+    info = CameraInfo(width=640, height=480, distortion_model='plumb_bob')
+    info.k = [460.0, 0.0, 320.0, 0.0, 460.0, 240.0, 0.0, 0.0, 1.0]
+    got = []
+    listener.create_subscription(DiagnosticArray, '/diagnostics', got.append, 10)
+    node._on_camera_info(info)
+    for _ in range(3):  # not an Image: AttributeError deep in the decoding
+        assert node._on_image(object()) is None  # returns: the node is not taken down
+    end = time.monotonic() + 10
+    while time.monotonic() < end and not any(
+            kv.key == 'unexpected errors' and kv.value == '3'
+            for arr in got for st in arr.status for kv in st.values):
+        time.sleep(0.01)
+    values = {kv.key: kv.value for st in got[-1].status for kv in st.values}
+    assert values['unexpected errors'] == '3'
+    err = capfd.readouterr().err
+    lines = [line for line in err.splitlines() if 'unexpected' in line]
+    assert len(lines) == 1, err  # the same cause, throttled
+    assert '[ERROR]' in lines[0]
+    assert 'AttributeError while handling an image' in lines[0]
+    assert 'encoding' in lines[0]  # the exception's own message
+    assert 'Traceback' not in err
