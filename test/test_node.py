@@ -508,7 +508,7 @@ def test_node_b_warned_once_per_cause_and_exits_cleanly(node_b):
     out = node_b.output
     assert code == 0, out
     assert 'Traceback' not in out, out
-    for cause in ('no valid camera_info', "'32FC1' is not supported", 'camera_info refused',
+    for cause in ('no valid camera_info', "'32FC1' is not supported", 'camera is uncalibrated',
                   'blank image skipped', 'time jumped (stamp went backwards',
                   'over max_frame_gap', 'are not all finite', 'image data has 100 bytes'):
         assert out.count(cause) == 1, f'{cause!r} logged {out.count(cause)} times:\n{out}'
