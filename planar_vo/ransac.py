@@ -12,6 +12,7 @@ at frame 2 in base_link at frame 1 (metres, rad). Numpy only; no ROS.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -255,7 +256,7 @@ def refine_motion(
     if circular:
         J_used = np.einsum('pq,pci->qci', G, J_used)
     if predicted_drop:  # the residuals after the last (tiny) step, to first order
-        r_used = r_used + np.einsum('q,qci->ci', step, J_used)
+        r_used = r_used + (step @ J_used.reshape(len(step), -1)).reshape(2, -1)
     covariance = motion_covariance(J_used, r_used, threshold2)
     if circular:
         covariance = G @ covariance @ G.T
@@ -282,32 +283,37 @@ def motion_covariance(J: np.ndarray, r: np.ndarray, threshold2: float = np.inf) 
     is inverted for sigma.
     """
     n_params, n = J.shape[0], r.shape[1]
-    H_inv = np.linalg.inv(np.einsum('pci,qci->pq', J, J) + 1e-15 * np.eye(n_params))
+    flat = J.reshape(n_params, -1)
+    H = flat @ flat.T
+    H_inv = np.linalg.inv(H + 1e-15 * np.eye(n_params))
     dof = max(2 * n - n_params, 1)
-    scores = np.einsum('pci,ci->pi', J, r)  # (P, N) each point's gradient
-    meat = scores @ scores.T * (2 * n / dof)
-    floor = 1e-14 * np.einsum('pci,qci->pq', J, J)  # noise-free data: a tiny, valid matrix
-    return H_inv @ (meat + floor) @ H_inv * _truncation_inflation(
-        float(np.sum(r * r)) / dof, threshold2)
+    scores = J[:, 0] * r[0] + J[:, 1] * r[1]  # (P, N) each point's gradient
+    meat = scores @ scores.T * (2 * n / dof) + 1e-14 * H  # noise-free data: still valid
+    sum_squared = float(r.ravel() @ r.ravel())
+    return H_inv @ meat @ H_inv * _truncation_inflation(sum_squared / dof, threshold2)
 
 
 def _truncation_inflation(mean_square: float, threshold2: float) -> float:
     """How much larger the noise variance (per axis) is than ``mean_square``.
 
     ``mean_square`` is the per-axis variance of residuals kept only inside the radius
-    ``sqrt(threshold2)``; the noise is taken as 2-D Gaussian.
+    ``sqrt(threshold2)``; the noise is taken as 2-D Gaussian. Capped at 4 (residuals that
+    fill the threshold's disc say little about the noise beyond it).
     """
-    if not np.isfinite(threshold2) or mean_square <= 0:
+    if not math.isfinite(threshold2) or mean_square <= 0:
         return 1.0
-    ratio = 1.0
-    for _ in range(30):  # fixed point; converges fast while sigma is well under tau
-        a = threshold2 / (2 * mean_square * ratio)
-        kept = 1.0 - a * np.exp(-a) / max(-np.expm1(-a), 1e-300)
-        new = 1.0 / max(kept, 0.25)
-        if abs(new - ratio) < 1e-4:
-            return new
-        ratio = new
-    return ratio
+    # mean_square / threshold2 = kept(a) / (2 a), decreasing in a = threshold2 / (2 sigma^2)
+    a = float(np.interp(mean_square / threshold2, _TRUNCATED_SQUARE, _TRUNCATION_A))
+    return 1.0 / max(_kept_fraction(a), 0.25)
+
+
+def _kept_fraction(a: np.ndarray | float) -> np.ndarray | float:
+    """Mean square of a 2-D Gaussian cut at radius^2 = 2 a sigma^2, over 2 sigma^2."""
+    return 1.0 - a * np.exp(-a) / -np.expm1(-a)
+
+
+_TRUNCATION_A = np.logspace(3, -2, 2000)  # a, decreasing, so the ratio below increases
+_TRUNCATED_SQUARE = _kept_fraction(_TRUNCATION_A) / (2 * _TRUNCATION_A)
 
 
 def _circular_jacobian(rho: float, yaw: float) -> np.ndarray:
