@@ -104,6 +104,26 @@ class CameraModel:
         object.__setattr__(self, 'K', K)
         object.__setattr__(self, 'D', D)
         object.__setattr__(self, 'distortion_model', model)
+        if D.size and self.width > 0 and self.height > 0:
+            self._check_rays()
+
+    def _check_rays(self) -> None:
+        """Refuse a lens model whose undistortion gives no ray somewhere in the image.
+
+        A coarse 5x5 grid is enough for coefficients that blow up; the finer check, the
+        undistort/distort round trip over the ground region, needs the mounting and is done
+        by the odometry.
+        """
+        u, v = np.meshgrid(np.linspace(0, self.width - 1, 5), np.linspace(0, self.height - 1, 5))
+        grid = np.stack([u.ravel(), v.ravel()], axis=1)
+        with np.errstate(all='ignore'):
+            bad = ~np.all(np.isfinite(self.normalize(grid)), axis=1)
+        if bad.any():
+            x, y = grid[np.argmax(bad)]
+            raise CameraModelError(
+                f'undistortion gives no ray at pixel ({x:.0f}, {y:.0f}) with '
+                f'{self.distortion_model} D = {np.round(self.D, 6).tolist()}: check the '
+                'distortion coefficients')
 
     @property
     def focal_px(self) -> float:

@@ -109,7 +109,7 @@ def _pixel_rows(buf: np.ndarray, encoding: str, height: int, width: int, step: i
                          f'even, not {width}')
     if step < row_bytes:
         raise ImageError(f'image step {step} is smaller than a row of {width} {encoding} '
-                         f'pixels ({row_bytes} bytes)')
+                         f'pixels ({row_bytes} bytes): the driver must send step >= that')
     need = step * (height - 1) + row_bytes  # the last row's padding may be left out
     if not need <= buf.size <= step * height:
         raise ImageError(f'image data has {buf.size} bytes, {encoding} {width}x{height} with '
