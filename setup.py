@@ -47,6 +47,7 @@ setup(
             'planar_vo_bench = planar_vo.benchmark:main',
             'planar_vo_soak = planar_vo.soak:main',
             'planar_vo_synth = planar_vo.synth:main',
+            'planar_vo_calibrate = planar_vo.calibrate:main',
         ],
     },
 )

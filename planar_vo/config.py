@@ -110,6 +110,23 @@ SCHEMA: tuple[Param, ...] = (
           0.5, 0.999999),
     Param('circular_refine', False, 'Keep the circular-motion constraint while refining.'),
     Param('min_inliers', 12, 'Fewest inliers for a frame to count as estimated.', 3, 1000),
+    # Real mountings: attitude to the ground and self-calibration.
+    Param('estimate_attitude', True, "Estimate the camera's pitch, roll and height to the ground "
+          'every frame, jointly with the motion (a sprung body; a mounting known to about a '
+          'degree). Off: the mounting is taken as rigid and exact.'),
+    Param('attitude_sigma', math.radians(2.0), 'How far the body tilts (pitch, roll) from its '
+          'mean attitude, rad (1 sigma).', 1e-4, 0.5),
+    Param('attitude_rate', 0.5, 'How fast the body tilts at most, rad/s (1 sigma); the actual '
+          'rate is learned.', 1e-4, 20.0),
+    Param('estimate_height', True, "Also estimate the camera height's change between frames "
+          '(body bounce); each frame pair starts from camera_height, which stays the scale.'),
+    Param('bounce_sigma', 0.03, 'With estimate_height: how far the camera height moves from '
+          'its mean, m (1 sigma).', 1e-5, 1.0),
+    Param('bounce_rate', 0.3, 'With estimate_height: how fast the camera height moves at '
+          'most, m/s (1 sigma).', 1e-5, 10.0),
+    Param('self_calibrate', True, 'Learn the static camera_pitch, camera_roll, camera_yaw and '
+          'camera_x from the drive, starting from the configured values (needs '
+          'estimate_attitude).'),
     Param('max_frame_gap', 1.0, 'A larger gap between image stamps, or one backwards, restarts '
           'tracking (the pose is kept, its covariance inflated), s.', 0.01, 3600.0),
 )

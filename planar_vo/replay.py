@@ -19,6 +19,7 @@ import numpy as np
 
 from planar_vo import evaluate
 from planar_vo.bag import BagError, BagWriter, open_reader
+from planar_vo.calibration import MountingEstimate
 from planar_vo.camera import CameraModelError
 from planar_vo.config import ConfigError, defaults, load_params_file
 from planar_vo.messages import (
@@ -70,6 +71,7 @@ class ReplayResult:
     counters: dict[str, int]
     warnings: list[str]
     frames: int
+    mounting: MountingEstimate | None = None  # what self-calibration learned over the drive
 
 
 def _pick_topic(connections: list, types: tuple[str, ...], wanted: str | None, what: str,
@@ -149,7 +151,8 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
                 writer.close()
     if vo is None:
         raise ReplayError(f'no usable CameraInfo on {info_conn.topic}')
-    return ReplayResult(estimate, truth, dict(vo.counters), warnings, frames)
+    return ReplayResult(estimate, truth, dict(vo.counters), warnings, frames,
+                        vo.mounting_estimate())
 
 
 def _read(reader: Any, connections: list, bag: str | Path) -> Iterator[tuple[Any, Any]]:

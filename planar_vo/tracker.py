@@ -59,6 +59,11 @@ class Tracker:
         self._normalize = normalize or _as_float64
         self.reset()
 
+    @property
+    def window(self) -> int:
+        """Lucas-Kanade window size, px (what :mod:`planar_vo.window_bias` corrects for)."""
+        return self._lk['winSize'][0]
+
     def reset(self) -> None:
         """Forget every track; the last image stays, so new tracks can start in it."""
         self.points = np.zeros((0, 2), np.float32)  # (N, 2) in the current image

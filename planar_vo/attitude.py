@@ -1,0 +1,249 @@
+"""The camera's attitude to the ground, estimated jointly with the planar motion.
+
+A sprung body pitches, rolls and bounces, and nobody knows a mounting to better than a
+degree, so the camera's rotation to the ground is not the configured one. Per frame k it is
+``Rb(a_k) @ R_m``: the configured mounting ``R_m`` (optical -> base_link) tilted in base_link
+by ``a_k = (roll, pitch, dh)``, with ``Rb = Ry(pitch) Rx(roll)`` (positive pitch looks down, as
+the mounting's) and the camera height raised by ``dh``. base_link itself stays on the ground,
+level: the odometry reports its planar motion, not the body's.
+
+Between two frames the ground induces the general homography ``R + t n^T / d`` (DESIGN.md §6),
+so the tilt of both frames is observable from the transfer error: the rotation between them
+from any frame pair, the ground normal from the translation. The absolute height is not
+(it is the scale): ``dh`` is held near 0 by its prior and only its change is measured.
+
+:func:`refine_with_attitude` is a two-frame sliding window: Gauss-Newton on the transfer
+error over (x, y, yaw, a_1, a_2) with three priors: ``a_1`` from the previous frame's
+posterior, ``a_2 - a_1`` a random walk (the body moves smoothly), and ``a_2`` near the learned
+mean mounting offset. Numpy only; no ROS.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from planar_vo.camera import BODY_FROM_OPTICAL, Mounting
+from planar_vo.ransac import PoseEstimationError
+
+__all__ = ['AttitudePrior', 'JointResult', 'body_tilt', 'tilted_mounting',
+           'refine_with_attitude', 'transfer_residuals']
+
+_E_X, _E_Y, _E_Z = np.eye(3)
+# Residuals below this (px) are not believed: KLT on real images is never better.
+_MIN_SIGMA_PX = 0.05
+
+
+def body_tilt(roll: float, pitch: float) -> np.ndarray:
+    """``Ry(pitch) @ Rx(roll)``: a tilt of the body about base_link's x and y axes, 3x3."""
+    cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    return ry @ rx
+
+
+def tilted_mounting(mounting: Mounting, attitude: np.ndarray) -> Mounting:
+    """The Mounting whose camera is ``mounting`` tilted by ``attitude = (roll, pitch, dh)``.
+
+    Exact: the composed rotation is converted back to the mounting's roll, pitch, yaw.
+    """
+    R = body_tilt(attitude[0], attitude[1]) @ mounting.base_from_optical @ BODY_FROM_OPTICAL.T
+    roll = float(np.arctan2(R[2, 1], R[2, 2]))
+    pitch = float(np.arcsin(np.clip(-R[2, 0], -1.0, 1.0)))
+    yaw = float(np.arctan2(R[1, 0], R[0, 0]))
+    return Mounting(x=mounting.x, y=mounting.y, height=mounting.height + float(attitude[2]),
+                    roll=roll, pitch=pitch, yaw=yaw)
+
+
+@dataclass(frozen=True)
+class AttitudePrior:
+    """What is known of the attitude before a frame pair is seen.
+
+    ``mean_1, cov_1``: the attitude at frame 1 (the previous posterior). ``step_cov``: how
+    much it may change by frame 2 (random walk). ``offset, offset_cov``: where it stays on
+    average (the learned mean mounting offset) and how far the body moves from there.
+    """
+
+    mean_1: np.ndarray  # (3,) roll, pitch (rad), dh (m)
+    cov_1: np.ndarray  # (3, 3)
+    step_cov: np.ndarray  # (3, 3)
+    offset: np.ndarray  # (3,)
+    offset_cov: np.ndarray  # (3, 3)
+
+
+@dataclass
+class JointResult:
+    """Motion and both frames' attitudes after the joint refinement."""
+
+    motion: np.ndarray  # (3,) x, y, yaw of base_link 2 in base_link 1
+    covariance: np.ndarray  # (3, 3) marginal over (x, y, yaw)
+    attitude: np.ndarray  # (3,) attitude at frame 2
+    attitude_covariance: np.ndarray  # (3, 3) marginal at frame 2
+    inliers: np.ndarray  # (N,) bool
+    rms_px: float
+    # What the image pair alone says of the attitude's change (roll, pitch, dh) from frame 1
+    # to 2, without the priors, and its covariance: the innovation that tells how fast the
+    # body really moves (see :meth:`planar_vo.odometry.VisualOdometry._learn_attitude_rate`).
+    change: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    change_cov: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+
+def _ground(v1: np.ndarray, a1: np.ndarray, position: np.ndarray):
+    """Frame-1 ground points (2, N) of base directions ``v1`` (3, N) tilted by ``a1``.
+
+    Also their derivatives (3, 2, N) with respect to (roll, pitch, dh), and where the ray
+    meets the ground at all (N,).
+    """
+    Rb = body_tilt(a1[0], a1[1])
+    d = Rb @ v1
+    d_roll = Rb @ np.cross(_E_X, v1, axis=0)
+    d_pitch = np.cross(_E_Y, d, axis=0)
+    down = d[2] < -1e-9
+    h = position[2] + a1[2]
+    s = np.where(down, -h / np.where(down, d[2], -1.0), 0.0)
+    points = position[:2, None] + s * d[:2]
+    jac = np.empty((3, 2, d.shape[1]))
+    for j, dd in enumerate((d_roll, d_pitch)):
+        jac[j] = s * (dd[:2] - d[:2] * (dd[2] / np.where(down, d[2], -1.0)))
+    jac[2] = d[:2] * (s / h)
+    return points, jac, down
+
+
+def transfer_residuals(
+    params: np.ndarray, v1: np.ndarray, m2: np.ndarray, mounting: Mounting
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Residuals (2, N), Jacobian (9, 2, N) and validity (N,) of the tilted transfer.
+
+    Args:
+        params: (9,) x, y, yaw, then roll, pitch, dh of frame 1, then of frame 2.
+        v1: (3, N) frame-1 rays rotated into base_link by the *configured* mounting.
+        m2: (2, N) observed frame-2 normalized image coordinates.
+        mounting: the configured mounting (its position and rotation).
+    """
+    x, y, yaw = params[:3]
+    a1, a2 = params[3:6], params[6:9]
+    position = mounting.position
+    p1, dp1, down = _ground(v1, a1, position)
+    c, s = np.cos(yaw), np.sin(yaw)
+    rz_t = np.array([[c, s], [-s, c]])
+    q = rz_t @ (p1 - np.array([[x], [y]]))
+    w = np.vstack([q - position[:2, None], np.full((1, q.shape[1]), -(position[2] + a2[2]))])
+    rx_t = body_tilt(a2[0], 0.0).T
+    ry_t = body_tilt(0.0, a2[1]).T
+    optical_from_base = mounting.base_from_optical.T
+    G = optical_from_base @ rx_t @ ry_t  # optical_2 from base_2 (tilted)
+    u_y = ry_t @ w
+    u = rx_t @ u_y
+    P = optical_from_base @ u
+    front = (P[2] > 1e-9) & down
+    iz = np.divide(1.0, P[2], out=np.zeros_like(P[2]), where=front)
+    m = P[:2] * iz
+    dP = np.empty((9, 3, P.shape[1]))
+    Gq = G[:, :2]
+    dP[0:2] = -(Gq @ rz_t).T[:, :, None]  # d/d(x, y): q = Rz^T (p1 - t)
+    dP[2] = Gq @ np.stack([q[1], -q[0]])
+    Gq_rz = Gq @ rz_t
+    for j in range(3):
+        dP[3 + j] = Gq_rz @ dp1[j]
+    dP[6] = optical_from_base @ np.stack([np.zeros_like(u[0]), u[2], -u[1]])
+    dP[7] = optical_from_base @ (rx_t @ -np.stack([u_y[2], np.zeros_like(u_y[0]), -u_y[0]]))
+    dP[8] = -G[:, 2][:, None]
+    J = (dP[:, :2] - dP[:, 2:3] * m) * iz
+    return m - m2, J, front
+
+
+def refine_with_attitude(
+    motion: np.ndarray,
+    v1: np.ndarray,
+    m2: np.ndarray,
+    mounting: Mounting,
+    prior: AttitudePrior,
+    *,
+    focal_px: float,
+    threshold_px: float,
+    iterations: int = 10,
+) -> JointResult:
+    """Gauss-Newton over (motion, attitude 1, attitude 2) with the attitude priors.
+
+    Inliers are chosen again at every step until the set settles, as in
+    :func:`planar_vo.ransac.refine_motion`; the pixel noise that weighs the data against the
+    priors is estimated from the inliers' residuals at every step too.
+
+    Args:
+        motion: (3,) starting motion (the RANSAC + 3-DoF estimate).
+        v1: (N, 3) frame-1 rays in base_link through the configured mounting.
+        m2: (N, 2) observed frame-2 normalized coordinates.
+        threshold_px: inlier threshold on the transfer error.
+
+    Raises:
+        PoseEstimationError: fewer than 3 correspondences fit.
+    """
+    v1_t = np.ascontiguousarray(v1.T, dtype=float)
+    m2_t = np.ascontiguousarray(m2.T, dtype=float)
+    params = np.concatenate([motion, prior.mean_1, prior.mean_1])
+    info_1 = np.linalg.inv(prior.cov_1)
+    info_step = np.linalg.inv(prior.step_cov)
+    info_offset = np.linalg.inv(prior.offset_cov)
+    floor2 = (_MIN_SIGMA_PX / focal_px) ** 2
+    threshold2 = (threshold_px / focal_px) ** 2
+    inliers = np.zeros(v1.shape[0], bool)
+    for i in range(iterations + 1):
+        r, J, front = transfer_residuals(params, v1_t, m2_t, mounting)
+        squared = r[0] * r[0] + r[1] * r[1]
+        selected = front & (squared < threshold2)
+        changed = not np.array_equal(selected, inliers)
+        inliers = selected
+        count = int(np.count_nonzero(inliers))
+        if count < 3:
+            raise PoseEstimationError(f'only {count} correspondences fit the tilted motion')
+        # Information of one normalized coordinate: 1 / sigma^2, sigma from the residuals.
+        weight = 1.0 / max(float(squared[inliers].sum()) / max(2 * count - 9, 1), floor2)
+        J_in = (J * inliers).reshape(9, -1)
+        H_data = weight * (J_in @ J.reshape(9, -1).T)
+        g_data = weight * (J_in @ r.reshape(-1))
+        H, g = H_data.copy(), g_data.copy()
+        a1, a2 = params[3:6], params[6:9]
+        H[3:6, 3:6] += info_1
+        g[3:6] += info_1 @ (a1 - prior.mean_1)
+        step_error = a2 - a1
+        H[3:6, 3:6] += info_step
+        H[6:9, 6:9] += info_step
+        H[3:6, 6:9] -= info_step
+        H[6:9, 3:6] -= info_step
+        g[3:6] -= info_step @ step_error
+        g[6:9] += info_step @ step_error
+        H[6:9, 6:9] += info_offset
+        g[6:9] += info_offset @ (a2 - prior.offset)
+        if i == iterations:
+            break
+        step = -np.linalg.solve(H, g)
+        params = params + step
+        if np.max(np.abs(step)) < 1e-6 and not changed:
+            break
+    covariance = np.linalg.inv(H)
+    rms = focal_px * float(np.sqrt(squared[inliers].mean()))
+    change, change_cov = _data_change(params, H_data, g_data)
+    return JointResult(params[:3].copy(), covariance[:3, :3].copy(), params[6:9].copy(),
+                       covariance[6:9, 6:9].copy(), inliers, rms, change, change_cov)
+
+
+# Everything but frame 1's height, which sets the scale (with it free, the data cannot tell
+# a higher camera from a longer step).
+_MEASURED = [0, 1, 2, 3, 4, 6, 7, 8]
+_CHANGE = np.zeros((3, 8))
+_CHANGE[[0, 1], [3, 4]], _CHANGE[[0, 1, 2], [5, 6, 7]] = -1.0, 1.0  # roll, pitch, dh: 2 - 1
+
+
+def _data_change(params: np.ndarray, H_data: np.ndarray,
+                 g_data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The attitude change the data alone estimate (one Newton step), and its covariance."""
+    H = H_data[np.ix_(_MEASURED, _MEASURED)]
+    try:
+        cov = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return np.zeros(3), np.eye(3)
+    z = params[_MEASURED] - cov @ g_data[_MEASURED]
+    change = _CHANGE @ z
+    change[2] -= params[5]
+    return change, _CHANGE @ cov @ _CHANGE.T

@@ -1,0 +1,152 @@
+"""Online self-calibration of the static camera mounting from the drive (DESIGN.md §6).
+
+What a nonholonomic vehicle's drive tells about where its camera sits:
+
+- pitch, roll: the mean of the camera's tracked tilt to the ground (the body moves around it);
+- yaw: the rear axle moves along base_link x, so a mounting yaw off by ``eta`` shows as a
+  sideways slip of ``rho * eta`` per step of length ``rho``;
+- camera_x: a camera placed ``dx`` wrong slips sideways by ``-yaw * dx`` per step that turns
+  by ``yaw`` (only turns tell);
+- camera_height: not from vision alone (it is the scale); see ``planar_vo_calibrate
+  --known-distance``.
+
+Sideways slip is measured against the circular motion of the axle: the component of each
+step's translation across its chord (the direction at half its yaw). The slip is linear in
+(eta, dx), so they come from a weighted least-squares line fit whose normal equations are kept
+as they accumulate; a correction applied to the working mounting is subtracted from them, so
+the fit keeps all the drive's evidence. Numpy only; no ROS.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from planar_vo.attitude import tilted_mounting
+from planar_vo.camera import Mounting
+
+__all__ = ['MountingCalibrator', 'MountingEstimate']
+
+# Body tilt samples are correlated over about this long (suspension and road), s: the
+# standard deviation of the mean tilt counts one independent sample per interval.
+_TILT_CORRELATION_S = 1.0
+# A yaw or camera_x correction is applied to the working mounting once known this well.
+_APPLY_YAW_STD, _APPLY_X_STD = np.radians(0.15), 0.03
+
+
+@dataclass(frozen=True)
+class MountingEstimate:
+    """The mounting learned so far, each value with its standard deviation.
+
+    A standard deviation of ``inf`` means the drive has not determined that value yet (no
+    turn: camera_x); the configured value is then kept.
+    """
+
+    mounting: Mounting
+    std: dict[str, float]  # camera_roll, camera_pitch, camera_yaw (rad), camera_x (m)
+    seconds: float  # driving time that went into it
+
+    def as_params(self) -> dict[str, float]:
+        """The estimate as ``camera_*`` parameter values."""
+        m = self.mounting
+        return {'camera_roll': m.roll, 'camera_pitch': m.pitch, 'camera_yaw': m.yaw,
+                'camera_x': m.x}
+
+
+class MountingCalibrator:
+    """Accumulates the evidence of one drive about the static mounting."""
+
+    def __init__(self, configured: Mounting) -> None:
+        self.configured = configured
+        self.working = configured  # configured, with the yaw and x corrections applied
+        self._tilt_sum = np.zeros(2)
+        self._tilt_sq = np.zeros(2)
+        self._tilt_time = 0.0
+        self._normal = np.zeros((2, 2))  # slip fit: sum phi phi^T / var
+        self._rhs = np.zeros(2)
+        self._chi2, self._samples = 0.0, 0
+
+    @property
+    def mean_tilt(self) -> np.ndarray:
+        """Mean (roll, pitch) of the camera's tilt to the ground so far, rad."""
+        return self._tilt_sum / self._tilt_time if self._tilt_time > 0 else np.zeros(2)
+
+    def add(self, motion: np.ndarray, motion_cov: np.ndarray, tilt: np.ndarray,
+            dt: float) -> None:
+        """One estimated step: base_link motion (through :attr:`working`), frame-2 tilt."""
+        # Arrays are replaced, never changed in place: VisualOdometry.process restores the
+        # attributes when a frame fails half-way.
+        self._tilt_sum = self._tilt_sum + tilt[:2] * dt
+        self._tilt_sq = self._tilt_sq + tilt[:2] ** 2 * dt
+        self._tilt_time += dt
+        x, y, yaw = motion
+        c, s = np.cos(yaw / 2), np.sin(yaw / 2)
+        rho, slip = c * x + s * y, -s * x + c * y
+        if abs(rho) < 1e-3:
+            return
+        grad = np.array([-s, c, -0.5 * rho])
+        variance = max(float(grad @ motion_cov @ grad), 1e-12)
+        phi = np.array([rho, -yaw])
+        self._normal = self._normal + np.outer(phi, phi) / variance
+        self._rhs = self._rhs + phi * slip / variance
+        self._chi2 += slip * slip / variance
+        self._samples += 1
+
+    def _slip_fit(self) -> tuple[np.ndarray, np.ndarray]:
+        """(eta, dx) and their covariance; inf where the drive does not determine them."""
+        normal = self._normal
+        if self._samples < 3 or np.linalg.cond(normal) > 1e12:
+            std = np.sqrt(1.0 / np.maximum(np.diag(normal), 1e-300))
+            if normal[0, 0] > 0:  # yaw alone (a straight drive)
+                eta = self._rhs[0] / normal[0, 0]
+                return np.array([eta, 0.0]), np.diag([std[0] ** 2, np.inf])
+            return np.zeros(2), np.diag([np.inf, np.inf])
+        cov = np.linalg.inv(normal)
+        theta = cov @ self._rhs
+        # Body motion and road make the slip noisier than the pixel noise alone says:
+        # scale the covariance by the fit's own dispersion when it is larger.
+        dof = max(self._samples - 2, 1)
+        chi2 = max(self._chi2 - float(theta @ self._rhs), 0.0)
+        return theta, cov * max(1.0, chi2 / dof)
+
+    def apply(self) -> bool:
+        """Move what is well determined into :attr:`working`; True if it changed."""
+        theta, cov = self._slip_fit()
+        std = np.sqrt(np.diag(cov))
+        applied = np.zeros(2)
+        if std[0] < _APPLY_YAW_STD:
+            applied[0] = theta[0]
+        if std[1] < _APPLY_X_STD:
+            applied[1] = theta[1]
+        if not np.any(np.abs(applied) > 1e-6):
+            return False
+        m = self.working
+        self.working = Mounting(x=m.x - applied[1], y=m.y, height=m.height, roll=m.roll,
+                                pitch=m.pitch, yaw=m.yaw - applied[0])
+        self._rhs = self._rhs - self._normal @ applied
+        # The slips already seen, had the new mounting been used, fit it by construction.
+        self._chi2 = max(self._chi2 - 2 * float(applied @ (self._rhs + self._normal @ applied))
+                         + float(applied @ self._normal @ applied), 0.0)
+        return True
+
+    def estimate(self) -> MountingEstimate:
+        """The static mounting learned so far."""
+        theta, cov = self._slip_fit()
+        m = self.working
+        with_slip = Mounting(x=m.x - theta[1], y=m.y, height=m.height, roll=m.roll,
+                             pitch=m.pitch, yaw=m.yaw - theta[0])
+        tilt = self.mean_tilt
+        mounting = tilted_mounting(with_slip, np.array([tilt[0], tilt[1], 0.0]))
+        if self._tilt_time > 0:
+            spread = np.sqrt(np.maximum(self._tilt_sq / self._tilt_time - tilt ** 2, 0.0))
+            independent = max(self._tilt_time / _TILT_CORRELATION_S, 1.0)
+            tilt_std = spread / np.sqrt(independent) + np.radians(0.01)
+        else:
+            tilt_std = np.full(2, np.inf)
+        std = {'camera_roll': float(tilt_std[0]), 'camera_pitch': float(tilt_std[1]),
+               'camera_yaw': float(np.sqrt(cov[0, 0])), 'camera_x': float(np.sqrt(cov[1, 1]))}
+        if not np.isfinite(std['camera_x']):
+            mounting = Mounting(x=self.configured.x, y=mounting.y, height=mounting.height,
+                                roll=mounting.roll, pitch=mounting.pitch, yaw=mounting.yaw)
+        return MountingEstimate(mounting, std, self._tilt_time)

@@ -1,0 +1,99 @@
+"""Attitude to the ground: the tilted transfer, its Jacobian, and recovery of known tilts."""
+
+import numpy as np
+import pytest
+
+from planar_vo.attitude import (
+    AttitudePrior,
+    body_tilt,
+    refine_with_attitude,
+    tilted_mounting,
+    transfer_residuals,
+)
+from planar_vo.camera import Mounting, rays_through
+from planar_vo.ransac import TransferModel
+from test.conftest import move_points, observe
+
+MOUNTING = Mounting(x=1.2, y=0.1, height=1.25, pitch=np.radians(8.0), roll=0.01, yaw=0.02)
+
+
+def _rays(rng, n=60):
+    m1 = np.c_[rng.uniform(-0.6, 0.6, n), rng.uniform(0.15, 0.5, n)]
+    return rays_through(m1)
+
+
+def test_tilted_mounting_is_the_body_tilt_composed_with_the_mounting():
+    """Closed form: a pure body pitch adds to the camera pitch when roll and yaw are 0."""
+    level = Mounting(x=1.0, height=1.0, pitch=0.1)
+    tilted = tilted_mounting(level, np.array([0.0, 0.03, 0.02]))
+    assert tilted.pitch == pytest.approx(0.13) and abs(tilted.roll) < 1e-12
+    assert tilted.height == pytest.approx(1.02)
+    general = tilted_mounting(MOUNTING, np.array([0.02, -0.01, 0.0]))
+    np.testing.assert_allclose(general.base_from_optical,
+                               body_tilt(0.02, -0.01) @ MOUNTING.base_from_optical, atol=1e-12)
+
+
+def test_transfer_agrees_with_the_mounting_path_and_its_jacobian_with_finite_differences():
+    rng = np.random.default_rng(1)
+    rays = _rays(rng)
+    v1 = (rays @ MOUNTING.base_from_optical.T).T
+    params = np.array([0.4, 0.01, 0.03, 0.01, -0.02, 0.01, -0.005, 0.015, -0.01])
+    r, J, valid = transfer_residuals(params, v1, np.zeros((2, len(rays))), MOUNTING)
+    assert valid.all()
+    # The same prediction through camera.Mounting: tilted mountings and the 3-DoF transfer.
+    frame_1 = tilted_mounting(MOUNTING, params[3:6])
+    frame_2 = tilted_mounting(MOUNTING, params[6:9])
+    ground, _ = frame_1.ground_points(rays)
+    model = TransferModel(*frame_2.ground_to_optical(), 460.0, frame_2)
+    np.testing.assert_allclose(r, model.transfer(params[:3], ground).T, atol=1e-12)
+    for j in range(9):
+        step = np.zeros(9)
+        step[j] = 1e-7
+        r_plus = transfer_residuals(params + step, v1, np.zeros_like(r), MOUNTING)[0]
+        r_minus = transfer_residuals(params - step, v1, np.zeros_like(r), MOUNTING)[0]
+        np.testing.assert_allclose(J[j], (r_plus - r_minus) / 2e-7, atol=1e-6)
+
+
+def test_recovers_known_tilts_with_a_consistent_covariance():
+    """Exact ground geometry through tilted cameras, 0.5 px noise: the tilt of frame 2 and
+    the motion come back unbiased, with errors matching the reported covariance."""
+    rng = np.random.default_rng(0)
+    f, sigma = 460.0, 0.5
+    tilt_1, tilt_2 = np.array([0.004, -0.01, 0.0]), np.array([0.006, -0.007, 0.0])
+    motion = np.array([0.25, 0.004, 0.02])
+    frame_1, frame_2 = tilted_mounting(MOUNTING, tilt_1), tilted_mounting(MOUNTING, tilt_2)
+    wide = np.diag([np.radians(2.0) ** 2] * 2 + [1e-12])
+    # Frame 1's tilt known to 0.1 deg (the previous frame's estimate), frame 2's free.
+    prior = AttitudePrior(tilt_1, wide / 400, wide, np.zeros(3), wide)
+    errors, nees = [], []
+    for _ in range(200):
+        points = np.c_[rng.uniform(3, 15, 200), rng.uniform(-4, 4, 200)]
+        m1 = observe(frame_1, points) + rng.normal(0, sigma / f, (200, 2))
+        m2 = observe(frame_2, move_points(points, motion)) + rng.normal(0, sigma / f, (200, 2))
+        v1 = rays_through(m1) @ MOUNTING.base_from_optical.T
+        joint = refine_with_attitude(motion, v1, m2, MOUNTING, prior, focal_px=f,
+                                     threshold_px=4.0)
+        error = np.r_[joint.motion - motion, joint.attitude[:2] - tilt_2[:2]]
+        errors.append(error)
+        nees.append(error[:3] @ np.linalg.solve(joint.covariance, error[:3]))
+    errors = np.array(errors)
+    spread = errors.std(axis=0)
+    assert np.all(np.abs(errors.mean(axis=0)) < 4 * spread / np.sqrt(len(errors)))
+    assert np.degrees(spread[3:]).max() < 0.2  # a tenth of a degree from one frame pair
+    assert 2.0 < np.mean(nees) < 4.5  # 3 is ideal
+
+
+def test_the_prior_holds_what_the_data_cannot_see():
+    """With no correspondences' worth of tilt information (a tiny step), frame 2's tilt
+    stays at the prior and its covariance near the prior's."""
+    rng = np.random.default_rng(3)
+    motion = np.array([1e-4, 0.0, 0.0])
+    points = np.c_[rng.uniform(3, 15, 100), rng.uniform(-4, 4, 100)]
+    m1, m2 = observe(MOUNTING, points), observe(MOUNTING, move_points(points, motion))
+    v1 = rays_through(m1) @ MOUNTING.base_from_optical.T
+    spread = np.diag([np.radians(1.0) ** 2] * 2 + [1e-12])
+    prior = AttitudePrior(np.zeros(3), spread, spread * 1e-4, np.zeros(3), spread)
+    joint = refine_with_attitude(motion, v1, m2 + rng.normal(0, 0.3 / 460, m2.shape), MOUNTING,
+                                 prior, focal_px=460.0, threshold_px=2.0)
+    assert np.all(np.abs(joint.attitude[:2]) < np.radians(0.2))
+    assert np.all(np.sqrt(np.diag(joint.attitude_covariance)[:2]) > np.radians(0.005))
