@@ -111,9 +111,10 @@ SCHEMA: tuple[Param, ...] = (
     Param('circular_refine', False, 'Keep the circular-motion constraint while refining.'),
     Param('min_inliers', 12, 'Fewest inliers for a frame to count as estimated.', 3, 1000),
     # Real mountings: attitude to the ground and self-calibration.
-    Param('estimate_attitude', True, "Estimate the camera's pitch, roll and height to the ground "
-          'every frame, jointly with the motion (a sprung body; a mounting known to about a '
-          'degree). Off: the mounting is taken as rigid and exact.'),
+    Param('estimate_attitude', False, "Estimate the camera's pitch, roll and height change to "
+          'the ground every frame, jointly with the motion (a sprung body; a mounting known to '
+          'about a degree). Off: the mounting is taken as rigid and exact (more accurate when '
+          'it is, and the covariances are validated only for it).'),
     Param('attitude_sigma', math.radians(2.0), 'How far the body tilts (pitch, roll) from its '
           'mean attitude, rad (1 sigma).', 1e-4, 0.5),
     Param('attitude_rate', 0.5, 'How fast the body tilts at most, rad/s (1 sigma); the actual '

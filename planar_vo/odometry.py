@@ -334,7 +334,8 @@ class VisualOdometry:
 
         Where it does not, KLT lags behind the true motion (measured on the rendered
         scenarios: 0.08-0.4 px at the bottom edge with a 15 px window), which is nothing to
-        a rigid 3-DoF fit but tilts the estimated ground once the attitude is estimated.
+        a rigid 3-DoF fit but tilts the estimated ground once the attitude is estimated
+        (0.06 deg of pitch, 0.25 % of scale). The rigid model keeps those tracks.
         """
         margin = self.tracker.window // 2 + 1
         u, v = pixels[:, 0], pixels[:, 1]
@@ -357,7 +358,9 @@ class VisualOdometry:
         mounting, model = self._current_geometry()
         p1, v1 = mounting.ground_points(rays1, self.horizon_margin)
         p2, v2 = mounting.ground_points(rays_through(m2), self.horizon_margin)
-        ok = v1 & v2 & self._window_inside(ref_px) & self._window_inside(cur_px)
+        ok = v1 & v2
+        if self.attitude_noise is not None:
+            ok &= self._window_inside(ref_px) & self._window_inside(cur_px)
         n = int(np.count_nonzero(ok))
         t_pose = time.perf_counter()
         try:

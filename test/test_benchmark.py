@@ -28,8 +28,7 @@ def test_reports_the_reference_pipeline_ratios_and_the_runs_accuracy(capsys):
     # Accuracy against the bag's ground truth, for both (the reference is the cruder one).
     ours, reference = out['accuracy']['planar_vo'], out['accuracy']['opencv_reference']
     assert ours['path_length_m'] > 3 and ours['path_length_m'] == reference['path_length_m']
-    # 12 frames (3 m) are the attitude tracker's start-up: t_rel there is 0.7 %.
-    assert abs(ours['scale_ratio'] - 1) < 0.01 and ours['t_rel_percent'] < 1.5
+    assert abs(ours['scale_ratio'] - 1) < 0.01 and ours['t_rel_percent'] < 0.5
     assert abs(reference['scale_ratio'] - 1) < 0.1 and reference['t_rel_percent'] < 10
 
 

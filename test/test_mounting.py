@@ -47,7 +47,8 @@ def test_sprung_body_attitude_tracking_beats_a_rigid_model(sprung_car):
     renderer, traj, images = sprung_car
     rigid = _metrics(_run(renderer, images, renderer.mounting,
                           {'estimate_attitude': False}), traj)
-    tracked = _metrics(_run(renderer, images, renderer.mounting, {}), traj)
+    tracked = _metrics(_run(renderer, images, renderer.mounting,
+                            {'estimate_attitude': True}), traj)
     assert tracked['t_rel_percent'] < rigid['t_rel_percent'] / 3, (tracked, rigid)
     assert tracked['t_rel_percent'] < 0.4, tracked
     assert tracked['r_rel_deg_per_100m'] < 2.0, tracked
@@ -72,8 +73,11 @@ def _cli(name, *args):
 
 
 def test_self_calibration_holds_accuracy_from_a_wrong_mounting(miscalibrated_drive):
-    result, bag, params, _ = miscalibrated_drive
-    run = _cli('planar_vo_replay', bag, '--params', params, '--json')
+    result, bag, params, out = miscalibrated_drive
+    tracked = out / 'tracked.yaml'
+    tracked.write_text(params.read_text().replace(
+        'ros__parameters:', 'ros__parameters:\n    estimate_attitude: true', 1))
+    run = _cli('planar_vo_replay', bag, '--params', tracked, '--json')
     assert run.returncode == 0, run.stderr
     accuracy = json.loads(run.stdout)['accuracy']
     assert accuracy['path_length_m'] > 40.0

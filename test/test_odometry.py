@@ -49,9 +49,9 @@ def test_blank_frames_are_skipped_without_losing_motion():
     results, truth = run_scenario('gentle', 90, corrupt=corrupt)
     statuses = [r.status for r in results]
     assert [statuses[k] for k in sorted(blank)] == ['blank'] * 3
-    # At 6 m/s four frames apart the ground has moved far: tracking either matches the last
-    # good frame again or restarts and extrapolates the gap; either way it resumes.
-    assert set(statuses[43:48]) <= {'ok', 'no_estimate', 'reinitialized'}
+    # At 6 m/s four frames apart the ground has moved too far for KLT: after a few tries
+    # against the last good frame, tracking restarts and the gap is extrapolated.
+    assert 'reinitialized' in statuses[43:48]
     assert statuses[48:] == ['ok'] * (90 - 48)
     m = evaluate.metrics(poses(results), truth)
     assert m['final_drift_percent'] < 0.5, m
