@@ -65,3 +65,18 @@ def test_unexpected_exception_is_one_error_line_and_counted(in_process_node, cap
     assert 'AttributeError while handling an image' in lines[0]
     assert 'encoding' in lines[0]  # the exception's own message
     assert 'Traceback' not in err
+
+
+def test_warnings_are_throttled_per_cause_with_bounded_memory(in_process_node, capfd):
+    node, _ = in_process_node
+    node._warn('image data has 100 bytes, mono8 640x480 needs 307200')
+    node._warn('image data has 7 bytes, mono8 320x240 needs 76800')  # same cause, numbers
+    node._warn("image encoding 'mono16' is not supported")  # a different cause: at once
+    node._warn("image encoding 'bgr8' is not supported")  # digits in names are not numbers
+    lines = [line for line in capfd.readouterr().err.splitlines() if '[WARN]' in line]
+    assert len(lines) == 3, lines
+    assert 'mono16' in lines[1] and 'bgr8' in lines[2]
+    letters = 'abcdefghij'
+    for k in range(100):  # 100 distinct causes: only the most recent are remembered
+        node._warn(f'cause {letters[k // 10]}{letters[k % 10]}')
+    assert len(node._warned) == 64
