@@ -77,6 +77,7 @@ class PlanarVoNode(Node):
         super().__init__('planar_vo', **kwargs)
         self.vo: VisualOdometry | None = None
         self.camera = None
+        self._calibration = None  # the last accepted CameraInfo's fields, to skip repeats
         self._warned: OrderedDict[str, tuple[float, int]] = OrderedDict()
         self._stats = {'frames': 0, 'estimated': 0, 'failed': 0, 'skipped': 0, 'errors': 0,
                        'last_status': 'waiting for images', 'tracks': 0, 'inliers': 0,
@@ -221,8 +222,14 @@ class PlanarVoNode(Node):
 
     @_guarded('camera_info')
     def _on_camera_info(self, msg: CameraInfo) -> None:
+        calibration = (msg.width, msg.height, msg.distortion_model, msg.k.tobytes(),
+                       msg.d.tobytes())
+        if calibration == self._calibration:  # drivers repeat it with every image
+            return
+        self._calibration = None
         try:
             self._set_camera(messages.camera_info_to_model(msg))
+            self._calibration = calibration
         except CameraModelError as err:
             self._warn(f'camera_info refused: {err}')
 
