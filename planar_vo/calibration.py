@@ -26,13 +26,17 @@ import numpy as np
 from planar_vo.attitude import tilted_mounting
 from planar_vo.camera import Mounting
 
-__all__ = ['MountingCalibrator', 'MountingEstimate']
+__all__ = ['MountingCalibrator', 'MountingEstimate', 'mounting_advice']
 
 # Body tilt samples are correlated over about this long (suspension and road), s: the
 # standard deviation of the mean tilt counts one independent sample per interval.
 _TILT_CORRELATION_S = 1.0
 # A yaw or camera_x correction is applied to the working mounting once known this well.
 _APPLY_YAW_STD, _APPLY_X_STD = np.radians(0.15), 0.03
+# Users are told to change a parameter once the drive says it is this far off, and knows
+# it to a third of that (rad, m).
+_ADVICE = {'camera_pitch': np.radians(0.5), 'camera_roll': np.radians(0.5),
+           'camera_yaw': np.radians(0.5), 'camera_x': 0.1}
 
 
 @dataclass(frozen=True)
@@ -150,3 +154,22 @@ class MountingCalibrator:
             mounting = Mounting(x=self.configured.x, y=mounting.y, height=mounting.height,
                                 roll=mounting.roll, pitch=mounting.pitch, yaw=mounting.yaw)
         return MountingEstimate(mounting, std, self._tilt_time)
+
+
+def mounting_advice(configured: Mounting, estimate: MountingEstimate) -> dict[str, str]:
+    """One line per parameter the drive says is off (> 0.5 deg, > 0.1 m): what to set."""
+    advice = {}
+    now = {'camera_roll': configured.roll, 'camera_pitch': configured.pitch,
+           'camera_yaw': configured.yaw, 'camera_x': configured.x}
+    for name, value in estimate.as_params().items():
+        off, std = value - now[name], estimate.std[name]
+        if abs(off) <= _ADVICE[name] or not std < _ADVICE[name] / 3:
+            continue
+        if name == 'camera_x':
+            detail = f'{now[name]:.3f} m but the drive says {value:.3f} +- {std:.3f} m'
+        else:
+            detail = (f'{np.degrees(now[name]):.2f} deg but the drive says '
+                      f'{np.degrees(value):.2f} +- {np.degrees(std):.2f} deg')
+        advice[name] = (f'{name} is configured as {detail}: set {name}: {value:.4f} '
+                        '(or run planar_vo_calibrate on a recorded drive)')
+    return advice

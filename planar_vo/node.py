@@ -79,6 +79,7 @@ class PlanarVoNode(Node):
         self.camera = None
         self._calibration = None  # the last accepted CameraInfo's fields, to skip repeats
         self._warned: OrderedDict[str, tuple[float, int]] = OrderedDict()
+        self._mounting_advised: set[str] = set()
         self._stats = {'frames': 0, 'estimated': 0, 'failed': 0, 'skipped': 0, 'errors': 0,
                        'last_status': 'waiting for images', 'tracks': 0, 'inliers': 0,
                        'ms': 0.0, 'ms_sum': 0.0}
@@ -338,6 +339,13 @@ class PlanarVoNode(Node):
                   'frames': s['frames'], 'frames estimated': s['estimated'],
                   'frames failed': s['failed'], 'frames skipped': s['skipped'],
                   'unexpected errors': s['errors']}
+        if self.vo is not None:
+            mounting, advice = self.vo.mounting_diagnostics()
+            values.update(mounting)
+            for name, line in advice.items():
+                if name not in self._mounting_advised:  # once per parameter
+                    self._mounting_advised.add(name)
+                    self.get_logger().warning(line)
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self.get_clock().now().to_msg()

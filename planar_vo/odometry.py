@@ -16,7 +16,7 @@ import numpy as np
 
 from planar_vo.attitude import AttitudePrior, refine_with_attitude, tilted_mounting
 from planar_vo.baselines import homography_motion
-from planar_vo.calibration import MountingCalibrator, MountingEstimate
+from planar_vo.calibration import MountingCalibrator, MountingEstimate, mounting_advice
 from planar_vo.camera import (
     MAX_ROUND_TRIP_PX,
     CameraModel,
@@ -226,6 +226,29 @@ class VisualOdometry:
     def mounting_estimate(self) -> MountingEstimate:
         """The self-calibrated static mounting so far, with standard deviations."""
         return self.calibrator.estimate()
+
+    def mounting_diagnostics(self) -> tuple[dict[str, str], dict[str, str]]:
+        """(key/values for diagnostics, advice per parameter the drive says is off).
+
+        Empty while self-calibration is off.
+        """
+        if not self.self_calibrate:
+            return {}, {}
+        estimate, configured = self.mounting_estimate(), self.configured_mounting
+        now = {'camera_roll': configured.roll, 'camera_pitch': configured.pitch,
+               'camera_yaw': configured.yaw, 'camera_x': configured.x}
+        values = {}
+        for name, value in estimate.as_params().items():
+            std = estimate.std[name]
+            if name == 'camera_x':
+                values[f'{name} estimated (m)'] = f'{value:.3f} +- {std:.3f}'
+                values[f'{name} configured (m)'] = f'{now[name]:.3f}'
+            else:
+                values[f'{name} estimated (deg)'] = (f'{np.degrees(value):.3f} +- '
+                                                     f'{np.degrees(std):.3f}')
+                values[f'{name} configured (deg)'] = f'{np.degrees(now[name]):.3f}'
+        values['calibration drive (s)'] = f'{estimate.seconds:.1f}'
+        return values, mounting_advice(configured, estimate)
 
     def set_camera(self, camera: CameraModel) -> None:
         """New intrinsics (e.g. a changed CameraInfo); tracks stay.
