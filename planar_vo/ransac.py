@@ -252,44 +252,44 @@ def refine_motion(
             predicted_drop = float(g @ step)
             break
     sum_squared = max(float(squared[inliers].sum()) + predicted_drop, 0.0)
-    J_used, r_used = J[:, :, inliers], r[:, inliers]
+    # Each inlier's gradient; the last step (under 10 micrometres) is left out of it.
+    scores = J[:, 0] * r[0] + J[:, 1] * r[1]
+    scores *= inliers
     if circular:
-        J_used = np.einsum('pq,pci->qci', G, J_used)
-    if predicted_drop:  # the residuals after the last (tiny) step, to first order
-        r_used = r_used + (step @ J_used.reshape(len(step), -1)).reshape(2, -1)
-    covariance = motion_covariance(J_used, r_used, threshold2)
+        scores = G.T @ scores
+    covariance = motion_covariance(JJt, scores, sum_squared, count, threshold2)
     if circular:
         covariance = G @ covariance @ G.T
     rms = model.focal_px * float(np.sqrt(sum_squared / count))
     return motion, covariance, rms, inliers
 
 
-def motion_covariance(J: np.ndarray, r: np.ndarray, threshold2: float = np.inf) -> np.ndarray:
+def motion_covariance(information: np.ndarray, scores: np.ndarray, sum_squared: float,
+                      count: int, threshold2: float = np.inf) -> np.ndarray:
     """Covariance (P, P) of a least-squares motion from its inliers' residuals.
 
     Args:
-        J: (P, 2, N) Jacobian of each inlier's residual with respect to the P parameters.
-        r: (2, N) residuals at the solution (normalized units).
+        information: (P, P) ``J^T J`` over the inliers (P parameters).
+        scores: (P, N) each inlier's gradient ``g_i = J_i^T r_i`` (zero for the others).
+        sum_squared: sum of the inliers' squared residuals (normalized units).
+        count: number of inliers (2 residuals each).
         threshold2: squared inlier threshold the residuals were selected with.
 
     Two effects make the textbook ``sigma^2 (J^T J)^-1`` optimistic on real tracks, and both
     are corrected here. The noise differs from point to point (distortion stretches it at
     the image edges; far points are noisier on the ground), and the noisy points are the
     ones with leverage: the sandwich ``H^-1 (sum_i g_i g_i^T) H^-1`` with each point's own
-    gradient ``g_i = J_i^T r_i`` follows the actual residuals instead of their average.
-    And inliers are the points whose residual is under the threshold, so their spread
-    underestimates the noise: for 2-D Gaussian residuals cut at radius ``tau`` the mean
-    square is ``2 sigma^2 (1 - a e^-a / (1 - e^-a))``, ``a = tau^2 / (2 sigma^2)``, which
-    is inverted for sigma.
+    gradient follows the actual residuals instead of their average. And inliers are the
+    points whose residual is under the threshold, so their spread underestimates the
+    noise: for 2-D Gaussian residuals cut at radius ``tau`` the mean square is
+    ``2 sigma^2 (1 - a e^-a / (1 - e^-a))``, ``a = tau^2 / (2 sigma^2)``, which is
+    inverted for sigma.
     """
-    n_params, n = J.shape[0], r.shape[1]
-    flat = J.reshape(n_params, -1)
-    H = flat @ flat.T
-    H_inv = np.linalg.inv(H + 1e-15 * np.eye(n_params))
-    dof = max(2 * n - n_params, 1)
-    scores = J[:, 0] * r[0] + J[:, 1] * r[1]  # (P, N) each point's gradient
-    meat = scores @ scores.T * (2 * n / dof) + 1e-14 * H  # noise-free data: still valid
-    sum_squared = float(r.ravel() @ r.ravel())
+    n_params = len(information)
+    H_inv = np.linalg.inv(information + 1e-15 * np.eye(n_params))
+    dof = max(2 * count - n_params, 1)
+    # (noise-free data: the small multiple of H keeps the matrix valid)
+    meat = scores @ scores.T * (2 * count / dof) + 1e-14 * information
     return H_inv @ meat @ H_inv * _truncation_inflation(sum_squared / dof, threshold2)
 
 

@@ -94,8 +94,10 @@ def test_motion_covariance_follows_each_points_noise():
         noise = rng.normal(size=(2, n)) * sigma
         delta = -H_inv @ np.einsum('pci,ci->p', J, noise)  # Gauss-Newton step from truth
         residuals = noise + np.einsum('p,pci->ci', delta, J)
+        scores = np.einsum('pci,ci->pi', J, residuals)
         estimates.append(delta)
-        covariances.append(motion_covariance(J, residuals))
+        covariances.append(motion_covariance(np.linalg.inv(H_inv), scores,
+                                             float(np.sum(residuals ** 2)), n))
     ratio = np.cov(np.array(estimates).T).diagonal() / np.mean(covariances, axis=0).diagonal()
     assert np.all((ratio > 0.9) & (ratio < 1.1)), ratio
 
@@ -107,10 +109,11 @@ def test_motion_covariance_undoes_the_inlier_thresholds_truncation(sigma):
     rng = np.random.default_rng(int(sigma * 100))
     r = rng.normal(0.0, sigma, (2, 200000))
     kept = r[:, np.sum(r * r, axis=0) < 1.0]
-    J = np.zeros((1, 2, kept.shape[1]))
-    J[0, 0] = 1.0  # one parameter: the mean of the first coordinate
-    covariance = motion_covariance(J, kept, threshold2=1.0)
-    assert covariance[0, 0] * kept.shape[1] == pytest.approx(sigma ** 2, rel=0.03)
+    n = kept.shape[1]
+    # One parameter, the mean of the first coordinate: J_i = (1, 0), so g_i = r_i,x.
+    covariance = motion_covariance(np.array([[float(n)]]), kept[:1], float(np.sum(kept ** 2)),
+                                   n, threshold2=1.0)
+    assert covariance[0, 0] * n == pytest.approx(sigma ** 2, rel=0.03)
 
 
 def test_refinement_is_exact_without_noise_and_covariance_reflects_noise(car_camera):
