@@ -54,6 +54,7 @@ _MOTION_ERROR_PERSISTENCE = 4.0
 _RATE_MEMORY_S = 2.0
 _MIN_RATE = np.array([3e-3, 3e-3, 1e-6])
 _FIXED_HEIGHT = 1e-6  # m, m/s: the height's spread and rate when it is not estimated
+_MASK_REDRAW_YAW = np.radians(0.5)
 
 
 @dataclass
@@ -274,6 +275,7 @@ class VisualOdometry:
                                check_round_trip=check_round_trip)
         self._model = TransferModel.from_camera(mounting, camera)
         self.camera, self.mounting, self._mask = camera, mounting, mask
+        self._mask_yaw = mounting.yaw
         self.tracker.set_normalize(camera.normalize)
 
     def process(self, gray: np.ndarray, stamp: float) -> FrameResult:
@@ -463,9 +465,20 @@ class VisualOdometry:
         if self.self_calibrate:
             self.calibrator.add(joint.motion, joint.covariance, joint.attitude, dt)
             if self.calibrator.apply():
-                self._update_geometry(self.camera, self.calibrator.working)
+                self._use_mounting(self.calibrator.working)
         return RansacResult(joint.motion, joint.covariance, joint.inliers, est.hypotheses,
                             joint.rms_px)
+
+    def _use_mounting(self, mounting: Mounting) -> None:
+        """Switch to a self-calibrated mounting.
+
+        The ground mask (13 ms) is drawn again only when the yaw moved visibly since it was
+        drawn: camera_x does not move it, and small yaws hardly do.
+        """
+        if abs(mounting.yaw - self._mask_yaw) > _MASK_REDRAW_YAW:
+            self._update_geometry(self.camera, mounting)
+        else:
+            self.mounting, self._model = mounting, TransferModel.from_camera(mounting, self.camera)
 
     def _learn_attitude_rate(self, change: np.ndarray, change_cov: np.ndarray,
                              dt: float) -> None:
