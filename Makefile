@@ -22,7 +22,7 @@ $(STAMP): setup.py package.xml
 	touch $(STAMP)
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check planar_vo test
+	$(VENV)/bin/ruff check planar_vo test launch
 
 pytest: $(STAMP)
 	ROS_PYTHON_CHECK_FIELDS=1 $(VENV)/bin/pytest -q test

@@ -10,6 +10,7 @@ WHEELS = [
     'ros-jazzy-rclpy',
     'ros-jazzy-common-interfaces',
     'ros-jazzy-rmw-fastrtps-cpp',
+    'ros-jazzy-ament-index-python',
     'opencv-python-headless',
     'numpy',
     'pyyaml',
@@ -24,6 +25,9 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
+        # The bundled bag: planar_vo_demo and planar_vo_bench play it when given no bag.
+        ('share/' + package_name + '/bags/default', glob('bags/default/*')),
     ],
     # Runtime dependencies come from package.xml (colcon/rosdep) or the 'wheels' extra (pip),
     # never from install_requires: apt's python3-opencv has no pip metadata.

@@ -40,11 +40,11 @@ from planar_vo.messages import (
 from planar_vo.odometry import VisualOdometry, compose
 from planar_vo.progress import Progress
 from planar_vo.ransac import PoseEstimationError, TransferModel, estimate_motion
+from planar_vo.resources import default_bag, default_params
 from planar_vo.tracker import Tracker
 
 __all__ = ['main', 'run_benchmark']
 
-DEFAULT_BAG = Path(__file__).resolve().parent.parent / 'bags' / 'default'
 _ACCURACY_KEYS = ('path_length_m', 't_rel_percent', 'r_rel_deg_per_100m', 'ate_rmse_m',
                   'scale_ratio')
 
@@ -327,28 +327,30 @@ def main(argv: list[str] | None = None) -> int:
         description='Time the planar_vo pipeline against OpenCV baselines and KLT tracking '
                     'on one bag, in one run; prints medians and the ratios the design bars '
                     'are about.')
-    parser.add_argument('bag', nargs='?', default=str(DEFAULT_BAG),
+    parser.add_argument('bag', nargs='?',
                         help='rosbag2 bag (default: the bundled bags/default)')
     parser.add_argument('--params', help='params YAML (default: built-in defaults)')
     parser.add_argument('--frames', type=int, help='use only the first N images')
     parser.add_argument('--live', action='store_true',
                         help='also start planar_vo_node and measure its latency and the '
                              'highest frame rate it sustains over DDS (loopback only)')
-    parser.add_argument('--node-params', default=str(DEFAULT_BAG.parent.parent / 'config'
-                                                      / 'planar_vo.yaml'),
-                        help='params YAML for the node with --live')
+    parser.add_argument('--node-params',
+                        help='params YAML for the node with --live (default: the shipped '
+                             'config/planar_vo.yaml)')
     parser.add_argument('--json', action='store_true', help='print one JSON object')
     args = parser.parse_args(argv)
     try:
         params = load_params_file(args.params) if args.params else defaults()
         if args.frames is not None and args.frames < 2:
             raise ConfigError('--frames must be at least 2')
-        result = run_benchmark(Path(args.bag), params, frames=args.frames,
+        bag = Path(args.bag) if args.bag else default_bag()
+        result = run_benchmark(bag, params, frames=args.frames,
                                progress=sys.stderr.isatty())
         if args.live:
             from planar_vo.live import LiveError
             try:
-                live = run_live_benchmark(Path(args.bag), Path(args.node_params))
+                live = run_live_benchmark(
+                    bag, Path(args.node_params) if args.node_params else default_params())
             except LiveError as err:
                 raise OSError(str(err)) from None
             at_30 = next((r for r in live['rates'] if r['rate_hz'] == 30.0), None)

@@ -21,12 +21,9 @@ from planar_vo.config import ConfigError, load_params_file
 from planar_vo.live import BagStream, LiveError, LiveSession
 from planar_vo.messages import planar_pose
 from planar_vo.replay import replay
+from planar_vo.resources import default_bag, default_params
 
 __all__ = ['main', 'run_demo']
-
-ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_BAG = ROOT / 'bags' / 'default'
-DEFAULT_PARAMS = ROOT / 'config' / 'planar_vo.yaml'
 
 
 def run_demo(bag: Path, params_file: Path, *, plot: Path | None = None,
@@ -78,16 +75,20 @@ def main(argv: list[str] | None = None) -> int:
         description='Start planar_vo_node, play a bag into it over DDS (loopback only) at '
                     'its own rate, and report accuracy against the ground truth, latency, '
                     'and agreement with the offline planar_vo_replay.')
-    p.add_argument('bag', nargs='?', default=str(DEFAULT_BAG),
+    p.add_argument('bag', nargs='?',
                    help='rosbag2 bag with images, CameraInfo and optionally ground truth '
-                        '(default: the bundled bags/default)')
-    p.add_argument('--params', default=str(DEFAULT_PARAMS), help='params YAML for the node')
+                        '(default: the bundled bags/default, from the source tree or '
+                        'share/planar_vo)')
+    p.add_argument('--params', help='params YAML for the node (default: the shipped '
+                                    'config/planar_vo.yaml)')
     p.add_argument('--plot', metavar='OUT.png', help='plot the trajectories here')
     p.add_argument('--log', metavar='FILE', help="write the node's output here")
     p.add_argument('--json', action='store_true', help='print one JSON object')
     args = p.parse_args(argv)
     try:
-        result = run_demo(Path(args.bag), Path(args.params),
+        bag = Path(args.bag) if args.bag else default_bag()
+        params = Path(args.params) if args.params else default_params()
+        result = run_demo(bag, params,
                           plot=Path(args.plot) if args.plot else None,
                           log=Path(args.log) if args.log else None)
     except (BagError, ConfigError, LiveError, OSError) as err:

@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -23,6 +22,7 @@ import numpy as np
 from planar_vo.bag import BagError, open_reader
 from planar_vo.messages import planar_pose, stamp_to_seconds
 from planar_vo.replay import IMAGE_TYPES
+from planar_vo.resources import executable
 
 __all__ = ['BagStream', 'LiveSession', 'LiveError', 'local_dds_env']
 
@@ -86,10 +86,10 @@ class LiveSession:
 
         env = local_dds_env()
         compressed = image_type.endswith('CompressedImage')
-        exe = Path(sys.executable).parent / 'planar_vo_node'
+        exe = executable('planar_vo_node')
         self._log = open(log, 'w') if log else subprocess.DEVNULL  # noqa: SIM115
         self.proc = subprocess.Popen(
-            [str(exe), '--ros-args', '--params-file', str(params_file),
+            [exe, '--ros-args', '--params-file', str(params_file),
              '-p', 'image_reliability:=reliable',
              '-p', f'image_transport:={"compressed" if compressed else "raw"}',
              '-r', 'image:=/camera/image_raw', '-r', 'camera_info:=/camera/camera_info',

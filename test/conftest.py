@@ -2,12 +2,22 @@
 
 import functools
 import os
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
 
+from planar_vo import resources
 from planar_vo.camera import CameraModel, Mounting
+
+# Tests find the package's executables as users do (planar_vo.resources.executable: PATH, then
+# lib/planar_vo of a sourced workspace). A venv run without a sourced workspace behaves as if
+# the venv were activated; with a sourced install its lib/planar_vo is what the tests run.
+if sys.prefix != sys.base_prefix and resources.installed_prefix() is None:
+    os.environ['PATH'] = os.pathsep.join([str(Path(sys.prefix) / 'bin'),
+                                          os.environ.get('PATH', '')])
 
 
 def paper_motion_rays(rng, theta, phi, rho, d=1.5, n=20):
@@ -32,6 +42,33 @@ def observe(mounting, points_base):
     A, b = mounting.ground_to_optical()
     p = points_base @ A.T + b
     return p[:, :2] / p[:, 2:]
+
+
+@pytest.fixture(scope='session')
+def colcon_install(tmp_path_factory):
+    """A colcon workspace with this package built and installed (once per session).
+
+    Returns the workspace root (``src/planar_vo``, ``install/``).
+    """
+    import shutil
+    import subprocess
+    root = resources.share_dir()
+    workspace = tmp_path_factory.mktemp('colcon_ws')
+    src = workspace / 'src' / 'planar_vo'
+    src.mkdir(parents=True)
+    ignore = shutil.ignore_patterns('__pycache__', '*.pyc', '*.egg-info')
+    for name in ('package.xml', 'setup.py', 'setup.cfg', 'ruff.toml', 'resource', 'planar_vo',
+                 'config', 'launch', 'bags', 'test'):
+        if (root / name).is_dir():
+            shutil.copytree(root / name, src / name, ignore=ignore)
+        else:
+            shutil.copy(root / name, src / name)
+    colcon = shutil.which('colcon')
+    assert colcon, "colcon missing: pip install -e '.[test]' installs it"
+    proc = subprocess.run([colcon, 'build', '--base-paths', 'src'], cwd=workspace,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return workspace
 
 
 @pytest.fixture

@@ -8,7 +8,6 @@ is lost to Fast DDS and a lost frame is never mistaken for a node bug.
 import os
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -16,16 +15,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-CONFIG = ROOT / 'config' / 'planar_vo.yaml'
-DEFAULT_BAG = ROOT / 'bags' / 'default'
+from planar_vo import resources
+
+CONFIG = resources.default_params()
+DEFAULT_BAG = resources.default_bag()
 MAX_FRAMES = 300
 
 
 def _node_exe() -> str:
-    exe = Path(sys.executable).parent / 'planar_vo_node'
-    assert exe.exists(), f'{exe} missing: pip install -e . first'
-    return str(exe)
+    return resources.executable('planar_vo_node')
 
 
 @pytest.fixture(scope='module')
@@ -563,33 +561,3 @@ def test_invalid_startup_parameter_is_one_clear_line(ros_env, override, reason):
     assert reason in proc.stderr
     assert 'Traceback' not in proc.stderr + proc.stdout
     assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
-
-
-# ------------------------------------------------------------------------------ colcon
-def test_colcon_build_installs_the_node(tmp_path, ros_env):
-    """``colcon build`` (the apt-ROS install path) puts planar_vo_node where ros2 run looks."""
-    import shutil
-    colcon = Path(sys.executable).parent / 'colcon'
-    assert colcon.exists(), "colcon missing: pip install -e '.[test]' installs it"
-    src = tmp_path / 'src' / 'planar_vo'
-    src.mkdir(parents=True)
-    for name in ('package.xml', 'setup.py', 'setup.cfg'):
-        shutil.copy(ROOT / name, src / name)
-    for name in ('resource', 'planar_vo', 'config'):
-        shutil.copytree(ROOT / name, src / name,
-                        ignore=shutil.ignore_patterns('__pycache__', '*.pyc'))
-    proc = subprocess.run([str(colcon), 'build', '--base-paths', 'src'], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=300, env=ros_env)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    install = tmp_path / 'install' / 'planar_vo'
-    exe = install / 'lib' / 'planar_vo' / 'planar_vo_node'
-    assert exe.exists() and os.access(exe, os.X_OK)
-    params = install / 'share' / 'planar_vo' / 'config' / 'planar_vo.yaml'
-    assert params.exists()
-    # The installed executable runs the installed package: a bad override is one clear line.
-    site = next(install.glob('lib/python3*/site-packages'))
-    env = dict(ros_env, PYTHONPATH=str(site))
-    run = subprocess.run([str(exe), '--ros-args', '--params-file', str(params),
-                          '-p', 'camera_height:=99'], capture_output=True, text=True,
-                         env=env, timeout=60, cwd=tmp_path)
-    assert run.returncode == 2 and 'camera_height = 99.0' in run.stderr, run.stderr

@@ -1,14 +1,13 @@
 import json
-import os
 import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from planar_vo import paper_experiment as pe
+from planar_vo import resources
 
-SCRIPT = os.path.join(os.path.dirname(sys.executable), 'planar_vo_paper_experiment')
+SCRIPT = resources.executable('planar_vo_paper_experiment')
 
 
 @pytest.fixture(scope='module')
@@ -124,7 +123,6 @@ def test_bad_arguments_exit_2_with_one_line(args, capsys):
     assert len(lines) == 1 and lines[0].startswith('planar_vo_paper_experiment: error:')
 
 
-@pytest.mark.skipif(not os.path.exists(SCRIPT), reason='console script not installed')
 def test_console_script_bad_args_and_help():
     bad = subprocess.run([SCRIPT, '--trials', '-5'], capture_output=True, text=True)
     assert bad.returncode == 2

@@ -2,20 +2,18 @@
 
 import json
 import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from planar_vo import config
+from planar_vo import config, resources
 from planar_vo.bag import open_reader
 from planar_vo.replay import main, replay, report
 
-ROOT = Path(__file__).resolve().parents[1]
-BAG = ROOT / 'bags' / 'default'
-PARAMS = ROOT / 'config' / 'planar_vo.yaml'
-REPLAY = str(Path(sys.executable).parent / 'planar_vo_replay')
+ROOT = resources.share_dir()
+BAG = resources.default_bag()
+PARAMS = resources.default_params()
+REPLAY = resources.executable('planar_vo_replay')
 
 
 @pytest.fixture(scope='module')
@@ -80,7 +78,7 @@ def test_compressed_images_and_sqlite_are_read(tmp_path):
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     src = tmp_path / 'jpeg'
-    subprocess.run([str(Path(sys.executable).parent / 'planar_vo_synth'), str(src),
+    subprocess.run([resources.executable('planar_vo_synth'), str(src),
                     '--frames', '30', '--rate', '15', '--compressed', '--quiet'], check=True)
     dst = tmp_path / 'sqlite'
     with open_reader(src) as reader, Writer(dst, version=9,

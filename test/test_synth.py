@@ -4,17 +4,16 @@ import dataclasses
 import math
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from planar_vo import synth
+from planar_vo import resources, synth
 from planar_vo.bag import BagError, open_reader
 from planar_vo.camera import Mounting
 from test.conftest import synth_camera_model
 
-SYNTH = str(Path(sys.executable).parent / 'planar_vo_synth')
+SYNTH = resources.executable('planar_vo_synth')
 
 SMALL = synth.SynthCamera.scaled(160, 120)
 
