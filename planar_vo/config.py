@@ -78,7 +78,9 @@ SCHEMA: tuple[Param, ...] = (
     Param('odom_frame', 'odom', 'Frame of the published pose (REP-105).'),
     Param('base_frame', 'base_link', 'Frame of the vehicle; the twist is expressed in it.'),
     Param('publish_tf', True, 'Broadcast odom -> base_link on /tf (needs tf2_ros).'),
-    Param('publish_path', False, 'Publish ~/path (nav_msgs/Path) of the whole trajectory.'),
+    Param('publish_path', False, 'Publish ~/path (nav_msgs/Path) of the recent trajectory.'),
+    Param('path_max_poses', 1000, 'Poses kept in ~/path (about 5 cm or 3 deg apart); the '
+          'oldest are dropped.', 2, 100000),
     Param('publish_debug_image', False, 'Publish ~/debug_image with inlier/outlier tracks.'),
     Param('image_transport', 'raw', "'raw' subscribes image, 'compressed' image/compressed.",
           choices=('raw', 'compressed'), read_only=True),
@@ -86,6 +88,8 @@ SCHEMA: tuple[Param, ...] = (
           "QoS of the image subscription: 'best_effort' connects to every publisher; "
           "'reliable' avoids losing large frames but only connects to reliable publishers.",
           choices=('best_effort', 'reliable'), read_only=True),
+    Param('rectified_input', False, 'The images are rectified (e.g. image_proc image_rect): '
+          'use the CameraInfo projection P and no distortion.', read_only=True),
     # Tracking.
     Param('max_features', 400, 'Features kept tracked; replenished on a grid.', 20, 5000),
     Param('quality_level', 0.005, 'Shi-Tomasi quality relative to the best corner.',

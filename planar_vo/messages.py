@@ -139,11 +139,14 @@ def compressed_to_gray(msg: Any) -> np.ndarray:
     return gray
 
 
-def camera_info_to_model(msg: Any) -> CameraModel:
-    """sensor_msgs/CameraInfo → CameraModel; raises CameraModelError with the reason.
+def camera_info_to_model(msg: Any, *, rectified: bool = False) -> CameraModel:
+    """sensor_msgs/CameraInfo → CameraModel of the images that come with it.
 
-    Beyond the checks of CameraModel (finite, plausible K and D), the image size must be
-    given and R and P must be finite.
+    ``binning_x/y`` and ``roi`` scale and shift the intrinsics as image_geometry does (binning
+    0 is 1; an all-zero ROI is the full image); the model's size is the ROI's, binned.
+    ``rectified``: the images are rectified (image_proc's ``image_rect``), so the projection
+    P is used, without distortion. Beyond the checks of CameraModel (finite, plausible K and
+    D), the image size must be given and R and P must be finite. Raises CameraModelError.
     """
     width, height = int(msg.width), int(msg.height)
     if width <= 0 or height <= 0:
@@ -154,9 +157,31 @@ def camera_info_to_model(msg: Any) -> CameraModel:
         if not np.all(np.isfinite(values)):
             raise CameraModelError(f'CameraInfo {name.upper()} = {values.tolist()} is not all '
                                    'finite: publish the calibration\'s real matrices')
-    return CameraModel(K=np.asarray(msg.k, dtype=float).reshape(3, 3),
-                       D=np.asarray(msg.d, dtype=float),
-                       distortion_model=str(msg.distortion_model), width=width, height=height)
+    if rectified:
+        K = np.asarray(msg.p, dtype=float).reshape(3, 4)[:, :3].copy()
+        D, model = np.zeros(0), 'plumb_bob'
+    else:
+        K = np.asarray(msg.k, dtype=float).reshape(3, 3).copy()
+        D, model = np.asarray(msg.d, dtype=float), str(msg.distortion_model)
+    bx, by = int(msg.binning_x) or 1, int(msg.binning_y) or 1
+    roi = msg.roi
+    x0, y0, roi_w, roi_h = (int(roi.x_offset), int(roi.y_offset), int(roi.width),
+                            int(roi.height))
+    if (x0, y0, roi_w, roi_h) == (0, 0, 0, 0):
+        roi_w, roi_h = width, height
+    elif roi_w <= 0 or roi_h <= 0 or x0 + roi_w > width or y0 + roi_h > height:
+        raise CameraModelError(
+            f'CameraInfo roi {roi_w}x{roi_h} at ({x0}, {y0}) does not fit in the '
+            f'{width}x{height} image: fix the driver\'s roi (all zero for the full image)')
+    if roi_w // bx < 1 or roi_h // by < 1:
+        raise CameraModelError(f'CameraInfo binning {bx}x{by} leaves no pixel of the '
+                               f'{roi_w}x{roi_h} image')
+    K[0, 2] -= x0
+    K[1, 2] -= y0
+    K[0] /= bx
+    K[1] /= by
+    return CameraModel(K=K, D=D, distortion_model=model, width=roi_w // bx,
+                       height=roi_h // by)
 
 
 def stamp_to_seconds(stamp: Any) -> float:

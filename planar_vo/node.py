@@ -1,10 +1,12 @@
 """``planar_vo_node``: the rclpy adapter around :class:`planar_vo.odometry.VisualOdometry`.
 
-Subscribes ``image`` (or ``<image>/compressed``) and ``camera_info``; publishes ``odom``
-for every image (stamp = image stamp; when a frame gives no estimate the held pose is
-published with an inflated covariance), optional ``~/path`` and ``~/debug_image``,
-``/diagnostics`` about once a second and odom → base_link on /tf when tf2_ros is installed.
-Service ``~/reset`` restarts at the origin.
+Subscribes ``image`` (or ``<image>/compressed``) and ``camera_info``, paired by stamp
+(:mod:`planar_vo.pairing`), and ``set_pose`` (geometry_msgs/PoseWithCovarianceStamped, as
+robot_localization): odometry continues from that pose. Publishes ``odom`` for every image
+(stamp = image stamp; when a frame gives no estimate the held pose is published with an
+inflated covariance; a repeated stamp publishes nothing), optional ``~/path`` and
+``~/debug_image``, ``/diagnostics`` about once a second (:mod:`planar_vo.health`) and
+odom → base_link on /tf when tf2_ros is installed. Service ``~/reset`` restarts at the origin.
 
 Parameters come from :data:`planar_vo.config.SCHEMA`. An invalid start-up value (command
 line or params file) is a one-line error and exit status 2; at run time invalid values are
@@ -18,11 +20,12 @@ import functools
 import re
 import sys
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 
+import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry, Path
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -30,6 +33,8 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
+from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -39,17 +44,22 @@ from std_srvs.srv import Trigger
 
 from planar_vo import config, messages
 from planar_vo.camera import CameraModelError
+from planar_vo.health import Health
 from planar_vo.odometry import VisualOdometry, mounting_from_params
+from planar_vo.pairing import Pairing
 
 _PARAMS = {p.name: p for p in config.SCHEMA}
-_OUTPUT_PARAMS = {'odom_frame', 'base_frame', 'publish_tf', 'publish_path',
-                  'publish_debug_image', 'image_transport', 'image_reliability'}
+_OUTPUT_PARAMS = {'odom_frame', 'base_frame', 'publish_tf', 'publish_path', 'path_max_poses',
+                  'publish_debug_image', 'image_transport', 'image_reliability',
+                  'rectified_input'}
+_PLANAR = (0, 1, 5)  # x, y, yaw within a 6x6 covariance over (x, y, z, roll, pitch, yaw)
 _WARN_EVERY = 10.0  # s: the same cause of a skipped frame is logged at most this often
 _WARN_CAUSES = 64  # distinct causes remembered for throttling (oldest forgotten first)
 # Numbers in a message (sizes like 640x480 too), but not digits inside names like mono16.
 _NUMBER = re.compile(r'\d+x\d+|(?<![A-Za-z_\d.])[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?'
                      r'|\bnan\b|\binf\b')
 _PATH_STEP = 0.05  # m or rad between poses appended to ~/path
+_PAIRING_WAIT = 0.05  # s an image waits at most for the CameraInfo of its stamp
 
 
 class StartupError(Exception):
@@ -77,12 +87,13 @@ class PlanarVoNode(Node):
         super().__init__('planar_vo', **kwargs)
         self.vo: VisualOdometry | None = None
         self.camera = None
-        self._calibration = None  # the last accepted CameraInfo's fields, to skip repeats
+        self._calibration = None  # (the last accepted CameraInfo's fields, its CameraModel)
         self._warned: OrderedDict[str, tuple[float, int]] = OrderedDict()
+        self._errors = 0  # unexpected exceptions (bugs) caught in callbacks
         self._mounting_advised: set[str] = set()
-        self._stats = {'frames': 0, 'estimated': 0, 'failed': 0, 'skipped': 0, 'errors': 0,
-                       'last_status': 'waiting for images', 'tracks': 0, 'inliers': 0,
-                       'ms': 0.0, 'ms_sum': 0.0}
+        self._pairing = Pairing()
+        self._health = Health()
+        self._camera_frame = ''
         self.params = self._declare_parameters()
         self.add_post_set_parameters_callback(self._on_params_set)
 
@@ -100,54 +111,66 @@ class PlanarVoNode(Node):
             self._image_sub = self.create_subscription(Image, topic, self._on_image, image_qos)
         self._info_sub = self.create_subscription(
             CameraInfo, 'camera_info', self._on_camera_info, qos_profile_sensor_data)
+        self._set_pose_sub = self.create_subscription(
+            PoseWithCovarianceStamped, 'set_pose', self._on_set_pose, 10)
         self._odom_pub = self.create_publisher(Odometry, 'odom', 10)
         self._path_pub = self.create_publisher(Path, '~/path', 1)
         self._debug_pub = self.create_publisher(Image, '~/debug_image', 1)
         self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self._path = Path()
+        self._path_poses: deque[PoseStamped] = deque(maxlen=p['path_max_poses'])
         self._reset_srv = self.create_service(Trigger, '~/reset', self._on_reset)
-        self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)  # also with use_sim_time, no /clock
+        self._diag_timer = self.create_timer(1.0, self._publish_diagnostics, clock=steady)
+        self._pairing_timer = self.create_timer(_PAIRING_WAIT, self._stop_waiting, clock=steady,
+                                                autostart=False)
         self._tf = None
-        if p['publish_tf']:
-            try:
-                from tf2_ros import TransformBroadcaster
-                self._tf = TransformBroadcaster(self)
-            except ImportError:
-                self.get_logger().info('tf2_ros is not installed: publishing nav_msgs/Odometry '
-                                       'only, no odom -> base_link transform on /tf')
+        self._tf_missing = False
+        self._update_tf()
         self.get_logger().info(
             f'listening on {self._image_sub.topic_name} ({p["image_transport"]}, '
             f'{p["image_reliability"]}) and {self._info_sub.topic_name}; '
             f'publishing {self._odom_pub.topic_name}')
 
+    def _update_tf(self) -> None:
+        """Create the /tf broadcaster when publish_tf is (or becomes) true."""
+        if not self.params['publish_tf'] or self._tf is not None or self._tf_missing:
+            return
+        try:
+            from tf2_ros import TransformBroadcaster
+            self._tf = TransformBroadcaster(self)
+        except ImportError:
+            self._tf_missing = True
+            self.get_logger().info('tf2_ros is not installed: publishing nav_msgs/Odometry '
+                                   'only, no odom -> base_link transform on /tf')
+
     # ---------------------------------------------------------------- parameters
     def _declare_parameters(self) -> dict:
+        """Declare the schema; a bad start-up value is a StartupError with our reason.
+
+        Each parameter is first declared with dynamic typing and no range, so that only
+        ``_validate`` judges the start-up value (and an integer for a float is accepted);
+        then the value is made a float if it should be, and the typed, ranged descriptor that
+        ``ros2 param describe`` shows is set. Public rclpy API only.
+        """
         self.add_pre_set_parameters_callback(self._ints_to_floats)
         self.add_on_set_parameters_callback(self._validate)
-        overrides = self._parameter_overrides  # start-up values: check them with our reasons
-        for name, value in list(overrides.items()):
-            spec = _PARAMS.get(name)
-            if spec is None:
-                if not name.startswith('qos_overrides.') and name != 'use_sim_time':
-                    self.get_logger().warning(f'unknown parameter {name!r} ignored')
-                continue
-            try:
-                checked = spec.check(value.value)
-            except config.ConfigError as err:
-                raise StartupError(f'invalid parameter: {err}') from None
-            overrides[name] = Parameter(name, value=checked)
+        self._rejected = ''
         for spec in config.SCHEMA:
-            desc = ParameterDescriptor(description=spec.description, read_only=spec.read_only)
-            if isinstance(spec.default, float):
-                desc.floating_point_range = [FloatingPointRange(
-                    from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
-            elif isinstance(spec.default, int) and not isinstance(spec.default, bool):
-                desc.integer_range = [IntegerRange(
-                    from_value=int(spec.low), to_value=int(spec.high), step=1)]
-            elif spec.choices:
-                desc.additional_constraints = 'one of: ' + ', '.join(spec.choices)
-            self.declare_parameter(spec.name, spec.default, desc)
-        return {s.name: self.get_parameter(s.name).value for s in config.SCHEMA}
+            try:
+                value = self.declare_parameter(spec.name, spec.default,
+                                               _descriptor(spec, loose=True)).value
+            except (InvalidParameterValueException, InvalidParameterTypeException) as err:
+                raise StartupError(f'invalid parameter: {self._rejected or err}') from None
+            if isinstance(spec.default, float) and not isinstance(value, float):
+                self.set_parameters([Parameter(spec.name, value=float(value))])
+            if not spec.read_only:  # rclpy keeps read-only descriptors as declared
+                self.set_descriptor(spec.name, _descriptor(spec))
+        unknown = sorted(set(self._parameter_overrides) - set(_PARAMS))  # read, never written
+        for name in unknown:
+            if not name.startswith('qos_overrides.') and name != 'use_sim_time':
+                self.get_logger().warning(f'unknown parameter {name!r} ignored')
+        return {s.name: _PARAMS[s.name].check(self.get_parameter(s.name).value)
+                for s in config.SCHEMA}
 
     def _ints_to_floats(self, params: list[Parameter]) -> list[Parameter]:
         out = []
@@ -167,6 +190,7 @@ class PlanarVoNode(Node):
             try:
                 spec.check(prm.value)
             except config.ConfigError as err:
+                self._rejected = str(err)
                 return SetParametersResult(successful=False, reason=str(err))
         return SetParametersResult(successful=True)
 
@@ -177,6 +201,10 @@ class PlanarVoNode(Node):
         for prm in params:
             if prm.name in _PARAMS:
                 self.params[prm.name] = _PARAMS[prm.name].check(prm.value)
+        if 'publish_tf' in names:
+            self._update_tf()
+        if 'path_max_poses' in names:
+            self._path_poses = deque(self._path_poses, maxlen=self.params['path_max_poses'])
         if self.vo is None or not names:
             return
         if names - set(config.MOUNTING_PARAMS) - _OUTPUT_PARAMS:
@@ -217,24 +245,39 @@ class PlanarVoNode(Node):
 
     def _unexpected(self, where: str, err: Exception) -> None:
         """A bug, not bad input: one ERROR line with the exception, and a counter."""
-        self._stats['errors'] += 1
+        self._errors += 1
         self._warn(f'unexpected {type(err).__name__} while handling {where}: {err} '
                    '(state restored; please report this line)', error=True)
 
     @_guarded('camera_info')
     def _on_camera_info(self, msg: CameraInfo) -> None:
-        calibration = (msg.width, msg.height, msg.distortion_model, msg.k.tobytes(),
-                       msg.d.tobytes())
-        if calibration == self._calibration:  # drivers repeat it with every image
-            return
-        self._calibration = None
         try:
-            self._set_camera(messages.camera_info_to_model(msg))
-            self._calibration = calibration
+            camera = self._camera_model(msg)
         except CameraModelError as err:
             self._warn(f'camera_info refused: {err}')
+            return
+        for paired in self._pairing.add_info(_stamp_ns(msg.header.stamp), camera):
+            self._process(paired)
+
+    def _camera_model(self, msg: CameraInfo):
+        """The CameraModel of ``msg``; the same object again when the calibration repeats.
+
+        Drivers repeat one CameraInfo with every image: it is converted (and checked) once.
+        A refused calibration is checked again each time. Raises CameraModelError.
+        """
+        roi = msg.roi
+        calibration = (msg.width, msg.height, msg.distortion_model, msg.k.tobytes(),
+                       msg.d.tobytes(), msg.p.tobytes(), msg.binning_x, msg.binning_y,
+                       roi.x_offset, roi.y_offset, roi.width, roi.height)
+        if self._calibration is not None and calibration == self._calibration[0]:
+            return self._calibration[1]
+        camera = messages.camera_info_to_model(msg, rectified=self.params['rectified_input'])
+        self._calibration = (calibration, camera)
+        return camera
 
     def _set_camera(self, camera) -> None:
+        if camera is self.camera:  # the same calibration repeated
+            return
         if self.camera is not None and (
                 camera.width, camera.height, camera.distortion_model) == (
                 self.camera.width, self.camera.height, self.camera.distortion_model) and (
@@ -247,43 +290,91 @@ class PlanarVoNode(Node):
                                    f'fx {camera.K[0, 0]:.1f}, {camera.distortion_model}')
         else:
             self.vo.set_camera(camera)
-            self.get_logger().info('camera_info changed: intrinsics updated')
+            self.get_logger().info(f'camera_info changed: {camera.width}x{camera.height}, '
+                                   f'fx {camera.K[0, 0]:.1f}')
         self.camera = camera
 
     @_guarded('an image')
     def _on_image(self, msg: Image) -> None:
-        self._process(msg, messages.image_to_gray)
+        self._receive(msg, messages.image_to_gray)
 
     @_guarded('a compressed image')
     def _on_compressed(self, msg: CompressedImage) -> None:
-        self._process(msg, messages.compressed_to_gray)
+        self._receive(msg, messages.compressed_to_gray)
 
-    def _process(self, msg, decode) -> None:
-        if self.vo is None:
-            self._stats['skipped'] += 1
+    def _receive(self, msg, decode) -> None:
+        self._health.image_received(time.monotonic())
+        for paired in self._pairing.add_image(_stamp_ns(msg.header.stamp), (msg, decode)):
+            self._process(paired)
+        if self._pairing.waiting:
+            self._pairing_timer.reset()
+
+    @_guarded('an image')
+    def _stop_waiting(self) -> None:
+        """The CameraInfo of the waiting image did not come in time: use the newest."""
+        self._pairing_timer.cancel()
+        for paired in self._pairing.flush():
+            self._process(paired)
+
+    def _process(self, paired) -> None:
+        """One image with the CameraInfo it was paired with."""
+        msg, decode = paired.image
+        if paired.info is None:
+            self._health.frame_failed('no camera_info')
             self._warn(f'no valid camera_info on {self._info_sub.topic_name} yet: image '
                        'skipped')
             return
+        if not paired.exact and self._pairing.unmatched:
+            self._warn('no camera_info with the image\'s stamp (the driver stamps them '
+                       'differently?): using the newest camera_info')
+        try:
+            self._set_camera(paired.info)
+        except CameraModelError as err:  # the odometry keeps its previous camera
+            self._warn(f'camera_info refused: {err}')
+            if self.vo is None:
+                return
+        self._camera_frame = msg.header.frame_id
         try:
             gray = decode(msg)
         except messages.ImageError as err:
-            self._stats['skipped'] += 1
+            self._health.frame_failed(f'image skipped: {err}')
             self._warn(f'image skipped: {err}')
             return
         # VisualOdometry.process restores its state itself when it raises.
         result = self.vo.process(gray, messages.stamp_to_seconds(msg.header.stamp))
         self._publish(msg.header, gray, result)
 
+    @_guarded('set_pose')
+    def _on_set_pose(self, msg: PoseWithCovarianceStamped) -> None:
+        """Continue from the given pose (robot_localization's set_pose convention)."""
+        frame = msg.header.frame_id
+        if frame and frame.lstrip('/') != self.params['odom_frame']:
+            self._warn(f'set_pose in frame {frame!r} ignored: it must be '
+                       f'in {self.params["odom_frame"]!r} (odom_frame)')
+            return
+        pose = messages.planar_pose(msg.pose.pose)
+        cov = np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)[np.ix_(_PLANAR, _PLANAR)]
+        if not (np.all(np.isfinite(pose)) and np.all(np.isfinite(cov))
+                and np.all(np.diag(cov) >= 0)):
+            self._warn('set_pose ignored: its pose or covariance is not '
+                       'finite, or a variance is negative')
+            return
+        if self.vo is None:
+            self._warn('set_pose ignored: no camera_info yet')
+            return
+        self._path_poses.clear()
+        self.vo.set_pose(pose, cov)
+        self.get_logger().info(f'pose set to x {pose[0]:.3f} m, y {pose[1]:.3f} m, '
+                               f'yaw {pose[2]:.4f} rad')
+
     # ---------------------------------------------------------------- output
     def _publish(self, header, gray, result) -> None:
-        s, p = self._stats, self.params
-        s['frames'] += 1
-        s['estimated' if result.estimated else 'failed'] += result.status != 'first'
-        s.update(last_status=result.status, tracks=result.tracks, inliers=result.inliers,
-                 ms=result.timing_ms.get('total', 0.0))
-        s['ms_sum'] += s['ms']
+        self._health.frame_done(result)
+        p = self.params
         if result.message and result.status not in ('ok', 'first'):
             self._warn(f'{result.status}: {result.message}')
+        if result.status == 'duplicate':  # tf2 rejects a repeated stamp (TF_REPEATED_DATA)
+            return
         odom = messages.odometry_from_result(result, header.stamp, p['odom_frame'],
                                              p['base_frame'], Odometry)
         self._odom_pub.publish(odom)
@@ -296,7 +387,8 @@ class PlanarVoNode(Node):
             self._debug_pub.publish(messages.debug_image(gray, result, header, Image))
 
     def _append_path(self, odom: Odometry) -> None:
-        poses = self._path.poses
+        """Keep a pose every ~5 cm or ~3 deg, at most path_max_poses; publish if listened to."""
+        poses = self._path_poses
         pos = odom.pose.pose.position
         if poses:
             last = poses[-1].pose
@@ -304,13 +396,12 @@ class PlanarVoNode(Node):
             turned = abs(odom.pose.pose.orientation.z - last.orientation.z) * 2
             if moved < _PATH_STEP and turned < _PATH_STEP:
                 return
-        ps = PoseStamped(header=odom.header, pose=odom.pose.pose)
-        poses.append(ps)
-        self._path.header = odom.header
-        self._path_pub.publish(self._path)
+        poses.append(PoseStamped(header=odom.header, pose=odom.pose.pose))
+        if self._path_pub.get_subscription_count():
+            self._path_pub.publish(Path(header=odom.header, poses=list(poses)))
 
     def _on_reset(self, request, response):
-        self._path = Path()
+        self._path_poses.clear()
         try:
             if self.vo is not None:
                 self.vo.reset()
@@ -325,31 +416,45 @@ class PlanarVoNode(Node):
 
     @_guarded('diagnostics')
     def _publish_diagnostics(self) -> None:
-        s = self._stats
-        status = DiagnosticStatus(name='planar_vo: visual odometry', hardware_id='camera')
-        if self.vo is None:
-            status.level, status.message = DiagnosticStatus.WARN, 'waiting for camera_info'
-        elif s['last_status'] in ('ok', 'first'):
-            status.level, status.message = DiagnosticStatus.OK, 'tracking'
-        else:
-            status.level, status.message = DiagnosticStatus.WARN, s['last_status']
-        values = {'state': s['last_status'], 'tracks': s['tracks'], 'inliers': s['inliers'],
-                  'processing time (ms)': f'{s["ms"]:.2f}',
-                  'mean processing time (ms)': f'{s["ms_sum"] / max(s["frames"], 1):.2f}',
-                  'frames': s['frames'], 'frames estimated': s['estimated'],
-                  'frames failed': s['failed'], 'frames skipped': s['skipped'],
-                  'unexpected errors': s['errors']}
+        level, message, values = self._health.report(time.monotonic(),
+                                                     calibrated=self.vo is not None)
+        values['unexpected errors'] = str(self._errors)
         if self.vo is not None:
+            values.update(self.vo.diagnostics())
             mounting, advice = self.vo.mounting_diagnostics()
             values.update(mounting)
             for name, line in advice.items():
                 if name not in self._mounting_advised:  # once per parameter
                     self._mounting_advised.add(name)
                     self.get_logger().warning(line)
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        status = DiagnosticStatus(
+            level=bytes([level]), name=f'{self.get_fully_qualified_name()}: visual odometry',
+            message=message, hardware_id=self._camera_frame,
+            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self.get_clock().now().to_msg()
         self._diag_pub.publish(arr)
+
+
+def _stamp_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def _descriptor(spec: config.Param, *, loose: bool = False) -> ParameterDescriptor:
+    """The parameter's descriptor; ``loose``: any type and no range (declaration only)."""
+    desc = ParameterDescriptor(description=spec.description, read_only=spec.read_only,
+                               dynamic_typing=loose)
+    if not loose:
+        desc.type = Parameter.Type.from_parameter_value(spec.default).value
+    if isinstance(spec.default, float) and not loose:
+        desc.floating_point_range = [FloatingPointRange(
+            from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
+    elif isinstance(spec.default, int) and not isinstance(spec.default, bool) and not loose:
+        desc.integer_range = [IntegerRange(
+            from_value=int(spec.low), to_value=int(spec.high), step=1)]
+    elif spec.choices:
+        desc.additional_constraints = 'one of: ' + ', '.join(spec.choices)
+    return desc
 
 
 def main(args=None) -> int:

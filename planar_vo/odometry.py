@@ -66,7 +66,8 @@ class FrameResult:
     pose_covariance: np.ndarray  # (3, 3) over (x, y, yaw)
     twist: np.ndarray  # (3,) vx, vy, yaw rate in base_link
     twist_covariance: np.ndarray  # (3, 3)
-    # 'first', 'ok', 'no_estimate', 'reinitialized', 'time_jump', 'blank', 'skipped'
+    # 'first', 'ok', 'no_estimate', 'reinitialized', 'time_jump', 'blank', 'skipped',
+    # 'duplicate' (the stamp of the previous frame again: nothing new to publish)
     status: str
     message: str = ''  # why the frame gave no estimate
     tracks: int = 0
@@ -178,6 +179,7 @@ class VisualOdometry:
         self.self_calibrate = self_calibrate and attitude is not None
         self.configured_mounting = mounting
         self.calibrator = MountingCalibrator(mounting)
+        self._resized = False  # set_camera changed the image size: restart tracking
         self._update_geometry(camera, mounting, check_round_trip=True)
         self.reset()
 
@@ -252,12 +254,23 @@ class VisualOdometry:
         return values, mounting_advice(configured, estimate)
 
     def set_camera(self, camera: CameraModel) -> None:
-        """New intrinsics (e.g. a changed CameraInfo); tracks stay.
+        """New intrinsics (e.g. a changed CameraInfo); tracks stay unless the size changed.
 
         Raises CameraModelError (and keeps the old camera) when the lens model cannot be
         inverted over the ground region.
         """
+        resized = (camera.width, camera.height) != (self.camera.width, self.camera.height)
         self._update_geometry(camera, self.mounting, check_round_trip=True)
+        self._resized |= resized
+
+    def set_pose(self, pose: np.ndarray, covariance: np.ndarray) -> None:
+        """Continue from ``pose`` (x, y, yaw in odom) with ``covariance`` (3x3); tracks stay.
+
+        The next measured motion is composed onto it, as robot_localization's set_pose does.
+        """
+        self.pose = np.asarray(pose, dtype=float).reshape(3).copy()
+        self.pose[2] = (self.pose[2] + np.pi) % (2 * np.pi) - np.pi
+        self.pose_covariance = np.asarray(covariance, dtype=float).reshape(3, 3).copy()
 
     def set_mounting(self, mounting: Mounting) -> None:
         """New camera mounting (run-time parameter change); tracks stay, calibration restarts."""
@@ -265,6 +278,20 @@ class VisualOdometry:
         self.configured_mounting = mounting
         self.calibrator = MountingCalibrator(mounting)
         self._reset_attitude()
+
+    def diagnostics(self) -> dict[str, str]:
+        """The estimator's state as /diagnostics key/values (the node adds them as they are)."""
+        c, m = self.counters, self.mounting
+        return {
+            'frames processed': str(c['frames']), 'frames estimated': str(c['estimated']),
+            'frames without estimate': str(c['no_estimate']),
+            'tracking restarts': str(c['reinitialized']), 'time jumps': str(c['time_jumps']),
+            'blank frames': str(c['blank']), 'frames skipped': str(c['skipped']),
+            'camera mounting (x y z m, roll pitch yaw rad)': (
+                f'{m.x:.3f} {m.y:.3f} {m.height:.3f}, {m.roll:.4f} {m.pitch:.4f} {m.yaw:.4f}'),
+            'camera': (f'{self.camera.width}x{self.camera.height}, fx {self.camera.K[0, 0]:.1f}, '
+                       f'{self.camera.distortion_model}'),
+        }
 
     def _update_geometry(self, camera: CameraModel, mounting: Mounting, *,
                          check_round_trip: bool = False) -> None:
@@ -305,13 +332,14 @@ class VisualOdometry:
             self.counters['skipped'] += 1
             return self._result(stamp, 'skipped', t0, message=(
                 f'image is {w}x{h} but CameraInfo says {self.camera.width}x'
-                f'{self.camera.height}: frame skipped (binning or ROI needs its own CameraInfo)'))
+                f'{self.camera.height} (after its binning and ROI): frame skipped'))
         if self._mask is None:
             self._update_geometry(_with_size(self.camera, gray.shape), self.mounting,
                                   check_round_trip=True)
         if self._last_stamp is not None and stamp == self._last_stamp:
             self.counters['skipped'] += 1
-            return self._result(stamp, 'skipped', t0, message='duplicate stamp: frame skipped')
+            return self._result(stamp, 'duplicate', t0,
+                                message='duplicate stamp: frame skipped, no odometry for it')
         if float(gray[::8, ::8].std()) < 2.0:  # lens cap, no exposure: keep the tracks
             self.counters['blank'] += 1
             return self._result(stamp, 'blank', t0, message='blank image skipped')
@@ -325,6 +353,13 @@ class VisualOdometry:
                    f'stamps {gap:.3f} s apart, over max_frame_gap {self.max_frame_gap:g} s')
             return self._result(stamp, 'time_jump', t0,
                                 message=f'time jumped ({why}): tracking restarted')
+        if self._resized and self._last_stamp is not None:
+            self._restart(stamp, extrapolate=True)
+            self._detect(is_reference=True, gray=gray)
+            self._resized = False
+            return self._result(stamp, 'reinitialized', t0,
+                                message='image size changed: tracking restarted')
+        self._resized = False
         previous, self._last_stamp = self._last_stamp, stamp
         if self._ref_stamp is None:
             self._ref_stamp = stamp

@@ -32,6 +32,7 @@ from planar_vo.messages import (
     stamp_to_seconds,
 )
 from planar_vo.odometry import FrameResult, VisualOdometry
+from planar_vo.pairing import Paired, Pairing
 from planar_vo.progress import Progress
 
 __all__ = ['main', 'replay', 'ReplayError', 'Trajectory']
@@ -114,37 +115,53 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
         total = sum(c.msgcount for c in conns if c.topic == image_conn.topic)
         writer = BagWriter(output) if output else None
         vo: VisualOdometry | None = None
-        frames, pending = 0, None
+        frames, pairing = 0, Pairing()
+
+        def process(ready: list[Paired]) -> None:
+            nonlocal vo
+            for paired in ready:
+                camera = paired.info
+                if camera is None:
+                    _warn_once(warnings, 'images before any CameraInfo were skipped')
+                    continue
+                if not paired.exact:
+                    _warn_once(warnings, 'images without a CameraInfo of their stamp: paired '
+                                         'with the newest CameraInfo')
+                try:
+                    if vo is None:
+                        vo = VisualOdometry.from_params(camera, params)
+                    elif (camera.width, camera.height) != (vo.camera.width,
+                                                           vo.camera.height) or (
+                            not np.array_equal(camera.K, vo.camera.K)
+                            or not np.array_equal(camera.D, vo.camera.D)):
+                        vo.set_camera(camera)  # keeps the old camera if it raises
+                except CameraModelError as err:
+                    _warn_once(warnings, f'CameraInfo refused: {err}')
+                    if vo is None:
+                        continue
+                _process(vo, paired.image, estimate, writer, params, warnings)
+
         bar = Progress(total, 'replay', enabled=progress)
         try:
             if writer:
                 writer.open()
             for conn, msg in _read(reader, wanted, bag):
+                stamp_ns = int(msg.header.stamp.sec) * 10**9 + int(msg.header.stamp.nanosec)
                 if conn.topic == info_conn.topic:
                     try:
-                        camera = camera_info_to_model(msg)
-                        if vo is None:
-                            vo = VisualOdometry.from_params(camera, params)
-                        elif not np.array_equal(camera.K, vo.camera.K) or not np.array_equal(
-                                camera.D, vo.camera.D):
-                            vo.set_camera(camera)
+                        camera = camera_info_to_model(msg,
+                                                      rectified=params['rectified_input'])
                     except CameraModelError as err:
                         _warn_once(warnings, f'CameraInfo refused: {err}')
                         continue
-                    if pending is not None:  # its CameraInfo came just after it
-                        _process(vo, pending, estimate, writer, params, warnings)
-                        pending = None
+                    process(pairing.add_info(stamp_ns, camera))
                 elif truth_conn is not None and conn.topic == truth_conn.topic:
                     truth.add(stamp_to_seconds(msg.header.stamp), planar_pose(msg.pose.pose))
                 else:
                     frames += 1
                     bar.update(frames)
-                    if vo is None:
-                        if pending is not None:
-                            _warn_once(warnings, 'images before any CameraInfo were skipped')
-                        pending = msg
-                        continue
-                    _process(vo, msg, estimate, writer, params, warnings)
+                    process(pairing.add_image(stamp_ns, msg))
+            process(pairing.flush())
         finally:
             bar.close()
             if writer:
@@ -188,6 +205,8 @@ def _process(vo: VisualOdometry, msg: Any, estimate: Trajectory, writer: BagWrit
         return
     if result.message:
         _warn_once(warnings, result.message)
+    if result.status == 'duplicate':  # as the node: no second odometry for one stamp
+        return
     estimate.add(result.stamp, result.pose)
     if writer:
         writer.write_raw('/odom', ODOM_TYPE, int(round(result.stamp * 1e9)),

@@ -2,7 +2,8 @@
 
 Run from the source tree (a checkout, ``pip install -e``, ``colcon build --symlink-install``),
 ``config/``, ``launch/`` and ``bags/`` sit next to the ``planar_vo`` package. Installed
-(``colcon build``), they are in ``share/planar_vo``, found through ``ament_index_python``.
+(``colcon build``), they are in ``share/planar_vo``, found through ``ament_index_python``
+(or, for a pip wheel, under the environment's prefix).
 Executables are found on ``PATH`` (a pip install) or in the package's ``lib/planar_vo``, where
 ``ros2 run`` looks; never next to ``sys.executable``, which after a colcon install is
 ``/usr/bin/python3``.
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import sysconfig
 from pathlib import Path
 
 __all__ = ['PACKAGE', 'ResourceError', 'share_dir', 'default_params', 'default_bag',
@@ -43,9 +45,9 @@ def share_dir() -> Path:
     """The directory holding ``config/``, ``launch/`` and ``bags/``."""
     if from_source_tree():
         return _SOURCE_ROOT
-    prefix = installed_prefix()
-    if prefix is not None and (prefix / 'share' / PACKAGE).is_dir():
-        return prefix / 'share' / PACKAGE
+    for prefix in (installed_prefix(), Path(sysconfig.get_path('data'))):  # colcon, pip
+        if prefix is not None and (prefix / 'share' / PACKAGE).is_dir():
+            return prefix / 'share' / PACKAGE
     raise ResourceError(
         f'cannot find the {PACKAGE} share directory: source the workspace '
         '(source install/setup.bash) or run from the source tree')

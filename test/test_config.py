@@ -6,7 +6,8 @@ import pytest
 
 from planar_vo import config
 
-CORE = ['solvers', 'ransac', 'camera', 'tracker', 'odometry', 'config', 'evaluate', 'baselines']
+CORE = ['solvers', 'ransac', 'camera', 'tracker', 'odometry', 'config', 'evaluate', 'baselines',
+        'pairing', 'health']
 
 
 def test_defaults_are_valid_and_described():

@@ -53,16 +53,16 @@ def test_installed_layout(colcon_install):
 def test_installed_package_finds_its_files_and_executables(colcon_install, tmp_path):
     code = ('from planar_vo import resources as r; '
             'print(r.__file__); print(r.default_params()); print(r.default_bag()); '
-            'print(r.launch_file()); print(r.executable("planar_vo_node"))')
+            f'print(r.launch_file()); print(*map(r.executable, {EXECUTABLES!r}))')
     out = run_sourced(colcon_install, f'{sys.executable} -c {code!r}', cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     install = colcon_install / 'install' / 'planar_vo'
-    module, params, bag, launch, node = (Path(line) for line in out.stdout.split())
+    module, params, bag, launch, *exes = (Path(line) for line in out.stdout.split())
     assert module.is_relative_to(install / 'lib')  # the installed copy, not the checkout
     assert params == install / 'share' / 'planar_vo' / 'config' / 'planar_vo.yaml'
     assert bag == install / 'share' / 'planar_vo' / 'bags' / 'default'
     assert launch.is_file() and launch.is_relative_to(install / 'share')
-    assert node == install / 'lib' / 'planar_vo' / 'planar_vo_node'
+    assert exes == [install / 'lib' / 'planar_vo' / name for name in EXECUTABLES]
 
 
 def test_installed_demo_without_arguments(colcon_install, tmp_path):

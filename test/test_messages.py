@@ -176,6 +176,66 @@ def test_camera_info():
         messages.camera_info_to_model(info)
 
 
+def _calibrated_info():
+    info = CameraInfo(width=640, height=480, distortion_model='plumb_bob')
+    info.k = [460.0, 0.0, 318.0, 0.0, 461.0, 243.0, 0.0, 0.0, 1.0]
+    info.d = [-0.25, 0.07, 0.0005, -0.0005, 0.0]
+    return info
+
+
+def _rays_and_pixels(info, rng):
+    """Normalized points and their full-resolution pixels, projected by OpenCV."""
+    normalized = rng.uniform(-0.5, 0.5, (50, 2))
+    obj = np.c_[normalized, np.ones(50)].reshape(-1, 1, 3)
+    K = np.array(info.k).reshape(3, 3)
+    pixels = cv2.projectPoints(obj, np.zeros(3), np.zeros(3), K, np.array(info.d))[0]
+    return normalized, pixels.reshape(-1, 2)
+
+
+@pytest.mark.parametrize('binning, roi', [
+    ((2, 2), (0, 0, 0, 0)),  # binned full image
+    ((1, 1), (100, 60, 400, 300)),  # region of interest
+    ((2, 4), (40, 20, 560, 440)),  # both, unequal binning
+    ((0, 0), (0, 0, 0, 0)),  # 0 means no binning
+])
+def test_camera_info_binning_and_roi_as_image_geometry(binning, roi):
+    """A pixel of the binned ROI image undistorts to the ray of its full-resolution pixel."""
+    info = _calibrated_info()
+    info.binning_x, info.binning_y = binning
+    info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height = roi
+    normalized, pixels = _rays_and_pixels(info, np.random.default_rng(1))
+    bx, by = max(binning[0], 1), max(binning[1], 1)
+    x0, y0 = roi[:2]
+    reduced = np.c_[(pixels[:, 0] - x0) / bx, (pixels[:, 1] - y0) / by]
+    cam = messages.camera_info_to_model(info)
+    np.testing.assert_allclose(cam.normalize(reduced), normalized, atol=1e-6)
+    width, height = roi[2:] if roi[2] else (640, 480)
+    assert (cam.width, cam.height) == (width // bx, height // by)
+
+
+def test_camera_info_roi_outside_the_image_is_refused():
+    info = _calibrated_info()
+    info.roi.x_offset, info.roi.width, info.roi.height = 400, 400, 100
+    with pytest.raises(CameraModelError, match='roi 400x100 at \\(400, 0\\)'):
+        messages.camera_info_to_model(info)
+
+
+def test_rectified_input_uses_p_and_no_distortion():
+    info = _calibrated_info()
+    info.p = [400.0, 0.0, 330.0, 0.0, 0.0, 400.0, 235.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    rng = np.random.default_rng(2)
+    normalized = rng.uniform(-0.5, 0.5, (20, 2))
+    rect_pixels = normalized * 400.0 + [330.0, 235.0]  # what image_proc's image_rect shows
+    cam = messages.camera_info_to_model(info, rectified=True)
+    assert cam.D.size == 0
+    np.testing.assert_allclose(cam.normalize(rect_pixels), normalized, atol=1e-9)
+    assert not np.allclose(messages.camera_info_to_model(info).normalize(rect_pixels),
+                           normalized, atol=1e-3)  # the raw model would be wrong here
+    info.p = [0.0] * 12
+    with pytest.raises(CameraModelError, match='uncalibrated'):
+        messages.camera_info_to_model(info, rectified=True)
+
+
 def result(**kw):
     base = dict(stamp=1.5, pose=np.array([1.0, -2.0, 0.5]),
                 pose_covariance=np.diag([0.01, 0.02, 0.003]),

@@ -29,21 +29,25 @@ def node(ros_env):  # noqa: F811
 
 
 def test_a_changed_calibration_after_repeats_is_applied(node):
-    node._on_camera_info(_info(460.0))
-    vo = node.vo
-    assert vo is not None and vo.camera.K[0, 0] == 460.0
-    node._on_camera_info(_info(460.0))  # the same again: nothing rebuilt
-    assert node.vo is vo and node.camera.K[0, 0] == 460.0
-    node._on_camera_info(_info(470.0))
-    assert node.vo is vo and vo.camera.K[0, 0] == 470.0
-    node._on_camera_info(_info(470.0, d=(-0.2, 0.05, 0.0, 0.0, 0.0)))
-    np.testing.assert_allclose(vo.camera.D, [-0.2, 0.05, 0.0, 0.0, 0.0])
+    """Repeats give the same CameraModel (not converted again); any change a new one.
+
+    (CameraInfo is applied when the image of its stamp comes, see test_node_io.py.)
+    """
+    first = node._camera_model(_info(460.0))
+    assert first.K[0, 0] == 460.0
+    assert node._camera_model(_info(460.0)) is first  # the same again: nothing converted
+    second = node._camera_model(_info(470.0))
+    assert second is not first and second.K[0, 0] == 470.0
+    third = node._camera_model(_info(470.0, d=(-0.2, 0.05, 0.0, 0.0, 0.0)))
+    np.testing.assert_allclose(third.D, [-0.2, 0.05, 0.0, 0.0, 0.0])
+    binned = _info(470.0, d=(-0.2, 0.05, 0.0, 0.0, 0.0))
+    binned.binning_x = binned.binning_y = 2
+    assert node._camera_model(binned).K[0, 0] == 235.0  # binning is part of the calibration
 
 
 def test_a_refused_calibration_is_checked_again_each_time(node):
-    node._on_camera_info(_info(0.0))  # uncalibrated: refused
-    assert node.vo is None
-    node._on_camera_info(_info(0.0))
-    assert node.vo is None
-    node._on_camera_info(_info(460.0))
-    assert node.vo is not None and node.vo.camera.K[0, 0] == 460.0
+    from planar_vo.camera import CameraModelError
+    for _ in range(2):  # uncalibrated: refused, every time
+        with pytest.raises(CameraModelError):
+            node._camera_model(_info(0.0))
+    assert node._camera_model(_info(460.0)).K[0, 0] == 460.0

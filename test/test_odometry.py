@@ -122,7 +122,7 @@ def test_duplicate_stamps_and_wrong_sizes_are_skipped_not_restarts():
         return image, stamp
 
     results, truth = run_scenario('gentle', 40, corrupt=corrupt)
-    assert results[20].status == 'skipped' and 'duplicate' in results[20].message
+    assert results[20].status == 'duplicate' and 'duplicate' in results[20].message
     assert results[25].status == 'skipped' and '320x240' in results[25].message
     assert [r.status for r in results[26:]] == ['ok'] * 14
     m = evaluate.metrics(poses(results), truth)
@@ -160,3 +160,59 @@ def test_an_exception_inside_process_leaves_the_state_as_it_was():
     # ... so the next frames go on as if the bad one had never come.
     assert [vo.process(frames.images[k], frames.stamps[k]).status for k in (3, 4, 5)] == [
         'ok', 'ok', 'ok']
+
+
+def _relative(a, b):
+    """Pose b in the frame of pose a (x, y, yaw)."""
+    c, s = np.cos(a[2]), np.sin(a[2])
+    dx, dy = b[:2] - a[:2]
+    return np.array([c * dx + s * dy, -s * dx + c * dy, np.angle(np.exp(1j * (b[2] - a[2])))])
+
+
+def _render(scenario, frames):
+    from planar_vo import synth
+    from planar_vo.odometry import VisualOdometry
+    from test.conftest import synth_camera_model
+    renderer, traj = synth.render_scenario(scenario, frames, 0)
+    camera = synth_camera_model(renderer)
+    images = [renderer.render(traj.x[k], traj.y[k], traj.yaw[k], k) for k in range(frames)]
+    from planar_vo import config
+    vo = VisualOdometry.from_params(camera, config.defaults())
+    return vo, camera, images, np.c_[traj.x, traj.y, traj.yaw]
+
+
+def test_set_pose_continues_from_the_given_pose_and_covariance():
+    vo, _, images, truth = _render('gentle', 40)
+    for k in range(20):
+        assert vo.process(images[k], k / 30.0).status in ('first', 'ok')
+    given = np.array([10.0, -3.0, 1.0])
+    vo.set_pose(given, np.diag([0.04, 0.09, 0.01]))
+    results = [vo.process(images[k], k / 30.0) for k in range(20, 40)]
+    assert all(r.status == 'ok' for r in results)
+    # The pose set applies to the last estimated frame (19); motion since then is composed on.
+    expected, _ = compose(given, np.zeros((3, 3)), _relative(truth[19], truth[39]),
+                          np.zeros((3, 3)))
+    np.testing.assert_allclose(results[-1].pose[:2], expected[:2], atol=0.01)
+    assert abs(results[-1].pose[2] - expected[2]) < 0.005
+    assert results[0].pose_covariance[0, 0] >= 0.04 and results[0].pose_covariance[1, 1] >= 0.09
+
+
+def test_a_new_image_size_restarts_tracking_and_keeps_the_motion():
+    """Binning switched on mid-run: a CameraInfo of the new size, tracking restarts."""
+    import cv2
+
+    from planar_vo.camera import CameraModel
+    vo, camera, images, truth = _render('gentle', 40)
+    binned = CameraModel(np.diag([0.5, 0.5, 1.0]) @ camera.K, camera.D,
+                         camera.distortion_model, camera.width // 2, camera.height // 2)
+    results = [vo.process(images[k], k / 30.0) for k in range(20)]
+    vo.set_camera(binned)
+    for k in range(20, 40):
+        small = cv2.resize(images[k], (binned.width, binned.height),
+                           interpolation=cv2.INTER_AREA)
+        results.append(vo.process(small, k / 30.0))
+    assert results[20].status == 'reinitialized' and 'size changed' in results[20].message
+    assert [r.status for r in results[21:]] == ['ok'] * 19
+    # Frame 20's motion is extrapolated, the rest measured at half resolution.
+    m = evaluate.metrics(poses(results), truth)
+    assert m['final_drift_percent'] < 1.0, m

@@ -1,0 +1,84 @@
+"""Diagnostics levels from image arrival times and frame results (no ROS, explicit clock)."""
+
+from types import SimpleNamespace
+
+from planar_vo.health import ERROR, OK, WARN, Health
+
+
+def result(status, message=''):
+    return SimpleNamespace(status=status, message=message, tracks=200, inliers=150,
+                           timing_ms={'total': 12.5})
+
+
+def feed(health, start, stop, rate, status='ok'):
+    """Images at ``rate`` Hz from ``start`` to ``stop`` s, each giving ``status``."""
+    n = int(round((stop - start) * rate))
+    for k in range(n):
+        health.image_received(start + k / rate)
+        health.frame_done(result(status))
+    return start + n / rate
+
+
+def test_ok_while_tracking_at_a_steady_rate():
+    health = Health()
+    t = feed(health, 0.0, 3.0, 30.0)
+    level, message, values = health.report(t, calibrated=True)
+    assert (level, message) == (OK, 'tracking')
+    assert abs(float(values['image rate (Hz)']) - 30.0) < 0.5
+    assert values['tracks'] == '200' and values['processing time (ms)'] == '12.50'
+    assert values['last failure'] == 'none'
+
+
+def test_warn_before_any_image_and_when_images_stop():
+    health = Health()
+    level, message, _ = health.report(0.5, calibrated=False)
+    assert level == WARN and 'no image received yet' in message
+    t = feed(health, 0.0, 2.0, 20.0)
+    assert health.report(t + 0.5, calibrated=True)[0] == OK
+    level, message, values = health.report(t + 1.7, calibrated=True)
+    assert level == WARN and 'no image for 1.' in message
+
+
+def test_warn_when_the_rate_drops_below_half_then_it_becomes_usual():
+    health = Health()
+    t = 0.0
+    for _ in range(5):  # 30 Hz, reported every second
+        t = feed(health, t, t + 1.0, 30.0)
+        assert health.report(t, calibrated=True)[0] == OK
+    levels = []
+    for _ in range(40):  # 10 Hz from now on
+        t = feed(health, t, t + 1.0, 10.0)
+        level, message, _ = health.report(t, calibrated=True)
+        levels.append(level)
+        if level == WARN:
+            assert 'below half of the usual' in message
+    assert WARN in levels[:3]  # noticed at once (the window still holds some 30 Hz images)
+    assert levels[-5:] == [OK] * 5  # a lasting new rate is the new normal
+    t = feed(health, t, t + 1.0, 8.0)  # within half of the usual rate: fine
+    assert health.report(t, calibrated=True)[0] == OK
+
+
+def test_error_while_tracking_is_lost_until_a_frame_is_estimated():
+    health = Health()
+    t = feed(health, 0.0, 1.0, 30.0)
+    health.frame_done(result('no_estimate', '5 inliers, fewer than 12'))
+    level, message, values = health.report(t, calibrated=True)
+    assert level == WARN and '5 inliers' in message  # one bad frame is not lost tracking
+    health.frame_done(result('reinitialized', 'tracking lost (3 inliers): restarted'))
+    level, message, values = health.report(t, calibrated=True)
+    assert level == ERROR and message.startswith('tracking lost')
+    assert 'reinitialized' in values['last failure']
+    health.frame_done(result('first'))  # neutral: still lost
+    assert health.report(t, calibrated=True)[0] == ERROR
+    health.frame_done(result('ok'))
+    assert health.report(t, calibrated=True)[0] == OK
+
+
+def test_error_after_many_frames_without_estimate_and_worst_level_wins():
+    health = Health()
+    t = feed(health, 0.0, 1.0, 30.0)
+    for _ in range(4):
+        health.frame_failed('image skipped: cannot decode')
+    level, message, _ = health.report(t + 2.0, calibrated=True)  # also stale
+    assert level == ERROR
+    assert 'tracking lost (image skipped: cannot decode)' in message and 'no image for' in message
