@@ -163,10 +163,11 @@ def camera_info_to_model(msg: Any, *, rectified: bool = False) -> CameraModel:
     else:
         K = np.asarray(msg.k, dtype=float).reshape(3, 3).copy()
         D, model = np.asarray(msg.d, dtype=float), str(msg.distortion_model)
-    bx, by = int(msg.binning_x) or 1, int(msg.binning_y) or 1
-    roi = msg.roi
-    x0, y0, roi_w, roi_h = (int(roi.x_offset), int(roi.y_offset), int(roi.width),
-                            int(roi.height))
+    # Objects with only the calibration fields (tests, other bag readers): no binning, no ROI.
+    bx, by = int(getattr(msg, 'binning_x', 0)) or 1, int(getattr(msg, 'binning_y', 0)) or 1
+    roi = getattr(msg, 'roi', None)
+    x0, y0, roi_w, roi_h = (0, 0, 0, 0) if roi is None else (
+        int(roi.x_offset), int(roi.y_offset), int(roi.width), int(roi.height))
     if (x0, y0, roi_w, roi_h) == (0, 0, 0, 0):
         roi_w, roi_h = width, height
     elif roi_w <= 0 or roi_h <= 0 or x0 + roi_w > width or y0 + roi_h > height:
