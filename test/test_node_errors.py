@@ -63,7 +63,7 @@ def test_unexpected_exception_is_one_error_line_and_counted(in_process_node, cap
     assert len(lines) == 1, err  # the same cause, throttled
     assert '[ERROR]' in lines[0]
     assert 'AttributeError while handling an image' in lines[0]
-    assert 'encoding' in lines[0]  # the exception's own message
+    assert "'object' object has no attribute" in lines[0]  # the exception's own message
     assert 'Traceback' not in err
 
 
