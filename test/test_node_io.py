@@ -272,7 +272,7 @@ def _diagnostics_ok_stale_lost(io, frames, DiagnosticStatus):  # noqa: N803 - a 
     ok = _wait_for_status(io, DiagnosticStatus.OK, 'tracking', keep_sending=good)
     values = {kv.key: kv.value for kv in ok.values}
     assert ok.hardware_id == 'camera_optical_frame'
-    assert 0.0 < float(values['image rate (Hz)']) < 12.0 and int(values['tracks']) > 50
+    assert float(values['image rate (Hz)']) > 0.0 and int(values['tracks']) > 50
     assert int(values['inliers']) > 20 and float(values['processing time (ms)']) > 0
     assert values['last failure'] and 'camera mounting (x y z m, roll pitch yaw rad)' in values
     # Stale: no image for a second.
