@@ -15,10 +15,9 @@ from pathlib import Path
 
 from planar_vo.bag import BagError
 from planar_vo.live import BagStream, LiveError, LiveSession
+from planar_vo.resources import ResourceError, default_bag, default_params
 
 __all__ = ['main']
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def resident_mb(pid: int) -> float:
@@ -34,13 +33,14 @@ def _parser() -> argparse.ArgumentParser:
         prog='planar_vo_soak', description='Play a bag forward and backward into '
         'planar_vo_node over loopback DDS for a long time; print frames answered and the '
         "node's resident memory over time.")
-    p.add_argument('bag', nargs='?', default=str(ROOT / 'bags' / 'default'))
+    p.add_argument('bag', nargs='?', help='rosbag2 bag (default: the bundled bags/default)')
     p.add_argument('--frames', type=int, default=20000, help='frames to send (default 20000)')
     p.add_argument('--rate', type=float, default=60.0, help='frames per second (default 60)')
     p.add_argument('--warm-up', type=int, default=2000,
                    help='frames after which memory growth is measured (default 2000)')
     p.add_argument('--every', type=int, default=2000, help='report every N frames')
-    p.add_argument('--params', default=str(ROOT / 'config' / 'planar_vo.yaml'))
+    p.add_argument('--params', help='params YAML for the node (default: the shipped '
+                                    'config/planar_vo.yaml)')
     return p
 
 
@@ -52,8 +52,9 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
         return 2
     try:
-        stream = BagStream.read(args.bag)
-    except BagError as err:
+        stream = BagStream.read(args.bag or default_bag())
+        params = args.params or default_params()
+    except (BagError, ResourceError) as err:
         print(f'planar_vo_soak: error: {err}', file=sys.stderr)
         return 2
     from rclpy.serialization import deserialize_message
@@ -61,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     images = [deserialize_message(raw, Image) for _, raw, _ in stream.frames]
     info = deserialize_message(stream.frames[0][2], CameraInfo)
     order = list(range(len(images))) + list(range(len(images) - 2, 0, -1))  # ping-pong
-    session = LiveSession(args.params, image_type=stream.image_type)
+    session = LiveSession(params, image_type=stream.image_type)
     try:
         session.wait_connected()
         session.handshake(stream.frames[0])

@@ -1,14 +1,14 @@
 """planar_vo_bench: what it reports (never how fast: timings are not asserted anywhere)."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from planar_vo import resources
 from planar_vo.benchmark import main
 
-BAG = Path(__file__).resolve().parents[1] / 'bags' / 'default'
+BAG = resources.default_bag()
 
 
 def test_reports_the_reference_pipeline_ratios_and_the_runs_accuracy(capsys):

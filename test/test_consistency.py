@@ -11,6 +11,7 @@ they must be under 5 % of the frames. Add sprung-body scenarios to SCENARIOS by 
 import numpy as np
 import pytest
 
+from planar_vo import resources
 from test.conftest import drive
 from test.ekf import PlanarEkf
 
@@ -158,12 +159,11 @@ def odometry_twists(bag, topic):
 def test_bundled_bag_odometry_is_consistent_with_its_ground_truth_twist(tmp_path):
     """As a user would check it: replay `bags/default` to a bag, read /odom back and compare
     each twist message with /ground_truth/odom at the same stamp."""
-    from pathlib import Path
 
     from planar_vo import config
     from planar_vo.replay import replay
 
-    root = Path(__file__).resolve().parents[1]
+    root = resources.share_dir()
     replay(root / 'bags' / 'default', config.load_params_file(root / 'config' / 'planar_vo.yaml'),
            output=tmp_path / 'odom')
     published = odometry_twists(tmp_path / 'odom', '/odom')

@@ -5,15 +5,12 @@ planar_vo.camera). Numbers measured when these tests were written are in the REA
 """
 
 import json
-import shutil
 import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from planar_vo import config, evaluate, synth
+from planar_vo import config, evaluate, resources, synth
 from planar_vo.odometry import VisualOdometry
 from test.conftest import synth_camera_model
 
@@ -68,7 +65,7 @@ def miscalibrated_drive(tmp_path_factory):
 
 
 def _cli(name, *args):
-    exe = shutil.which(name) or str(Path(sys.executable).parent / name)
+    exe = resources.executable(name)
     return subprocess.run([exe, *map(str, args)], capture_output=True, text=True, timeout=300)
 
 

@@ -7,7 +7,6 @@ Profiles (fixed seed, bounded examples) are in conftest.py.
 """
 
 import math
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -15,13 +14,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from planar_vo import messages
+from planar_vo import messages, resources
 from planar_vo.camera import MAX_IMAGE_SIDE, CameraModel, CameraModelError
 from planar_vo.config import load_params_file
 from planar_vo.messages import SUPPORTED_ENCODINGS, ImageError
 from planar_vo.odometry import VisualOdometry
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = resources.share_dir()
 # The message and lens properties take about a millisecond per example: give them more.
 CHEAP = settings(max_examples=5 * settings().max_examples)
 BYTES_PER_PIXEL = {'mono8': 1, 'mono16': 2, 'bgr8': 3, 'rgb8': 3, 'bgra8': 4, 'rgba8': 4,
