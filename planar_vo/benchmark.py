@@ -245,9 +245,11 @@ def run_live_benchmark(bag: Path, params_file: Path, *, frames: int = 150,
             row = {'rate_hz': rate, 'sent': len(stamps), 'received': len(latency),
                    'median_ms': float(np.median(latency)) if len(latency) else None,
                    'p95_ms': float(np.percentile(latency, 95)) if len(latency) else None,
+                   'mean_ms': float(np.mean(latency)) if len(latency) else None,
                    'node_compute_ms': (after[1] - before[1]) / computed if computed else None}
-            if row['median_ms'] is not None and row['node_compute_ms']:
-                row['latency_over_compute'] = row['median_ms'] / row['node_compute_ms']
+            if row['mean_ms'] is not None and row['node_compute_ms']:
+                # Means of both: the node reports the mean of its compute, not the median.
+                row['latency_over_compute'] = row['mean_ms'] / row['node_compute_ms']
             rows.append(row)
             before = after
     finally:
@@ -355,9 +357,9 @@ def main(argv: list[str] | None = None) -> int:
                 raise OSError(str(err)) from None
             at_30 = next((r for r in live['rates'] if r['rate_hz'] == 30.0), None)
             if at_30 and 'latency_over_compute' in at_30:
-                result['ratios']['node_latency_at_30hz_over_its_compute'] = at_30[
+                result['ratios']['node_mean_latency_at_30hz_over_its_compute'] = at_30[
                     'latency_over_compute']
-                result['bars']['node_latency_at_30hz_over_its_compute'] = '<= 1.3'
+                result['bars']['node_mean_latency_at_30hz_over_its_compute'] = '<= 1.3'
             result['live'] = live
     except (BagError, ConfigError, ImageError, OSError) as err:
         print(f'planar_vo_bench: error: {err}', file=sys.stderr)
@@ -381,8 +383,9 @@ def main(argv: list[str] | None = None) -> int:
         for row in result['live']['rates']:
             print(f'  {row["rate_hz"]:5.0f} Hz: {row["received"]}/{row["sent"]} frames, '
                   f'latency median {row["median_ms"] or float("nan"):.1f} ms, '
-                  f'95th percentile {row["p95_ms"] or float("nan"):.1f} ms; the node\'s '
-                  f'compute {row["node_compute_ms"] or float("nan"):.1f} ms a frame')
+                  f'95th percentile {row["p95_ms"] or float("nan"):.1f} ms, mean '
+                  f'{row["mean_ms"] or float("nan"):.1f} ms; the node\'s compute '
+                  f'{row["node_compute_ms"] or float("nan"):.1f} ms a frame (mean)')
         print(f'  highest rate without dropped frames: '
               f'{result["live"]["highest_rate_without_drops_hz"]} Hz')
     for name, acc in result['accuracy'].items():
