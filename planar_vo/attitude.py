@@ -43,16 +43,21 @@ def body_tilt(roll: float, pitch: float) -> np.ndarray:
     return ry @ rx
 
 
-def tilted_mounting(mounting: Mounting, attitude: np.ndarray) -> Mounting:
+def tilted_mounting(mounting: Mounting, attitude: np.ndarray,
+                    arm: np.ndarray | None = None) -> Mounting:
     """The Mounting whose camera is ``mounting`` tilted by ``attitude = (roll, pitch, dh)``.
 
+    The body tilts about the pivot at ``camera - arm`` (default: the camera tilts in place).
     Exact: the composed rotation is converted back to the mounting's roll, pitch, yaw.
     """
-    R = body_tilt(attitude[0], attitude[1]) @ mounting.base_from_optical @ BODY_FROM_OPTICAL.T
+    tilt = body_tilt(attitude[0], attitude[1])
+    arm = np.zeros(3) if arm is None else np.asarray(arm, dtype=float)
+    x, y, z = mounting.position - arm + tilt @ arm
+    R = tilt @ mounting.base_from_optical @ BODY_FROM_OPTICAL.T
     roll = float(np.arctan2(R[2, 1], R[2, 2]))
     pitch = float(np.arcsin(np.clip(-R[2, 0], -1.0, 1.0)))
     yaw = float(np.arctan2(R[1, 0], R[0, 0]))
-    return Mounting(x=mounting.x, y=mounting.y, height=mounting.height + float(attitude[2]),
+    return Mounting(x=float(x), y=float(y), height=float(z) + float(attitude[2]),
                     roll=roll, pitch=pitch, yaw=yaw)
 
 
@@ -89,29 +94,35 @@ class JointResult:
     change_cov: np.ndarray = field(default_factory=lambda: np.eye(3))
 
 
-def _ground(v1: np.ndarray, a1: np.ndarray, position: np.ndarray):
+def _ground(v1: np.ndarray, a1: np.ndarray, position: np.ndarray, arm: np.ndarray):
     """Frame-1 ground points (2, N) of base directions ``v1`` (3, N) tilted by ``a1``.
 
-    Also their derivatives (3, 2, N) with respect to (roll, pitch, dh), and where the ray
-    meets the ground at all (N,).
+    The body tilts about a pivot ``arm`` below/behind the camera (camera - pivot), so the
+    camera also moves. Also the derivatives (3, 2, N) with respect to (roll, pitch, dh),
+    and where the ray meets the ground at all (N,).
     """
     Rb = body_tilt(a1[0], a1[1])
     d = Rb @ v1
     d_roll = Rb @ np.cross(_E_X, v1, axis=0)
     d_pitch = np.cross(_E_Y, d, axis=0)
+    swung = Rb @ arm
+    centre = position - arm + swung + np.array([0.0, 0.0, a1[2]])
+    c_roll, c_pitch = Rb @ np.cross(_E_X, arm), np.cross(_E_Y, swung)
     down = d[2] < -1e-9
-    h = position[2] + a1[2]
-    s = np.where(down, -h / np.where(down, d[2], -1.0), 0.0)
-    points = position[:2, None] + s * d[:2]
+    h = centre[2]
+    safe_z = np.where(down, d[2], -1.0)
+    s = np.where(down, -h / safe_z, 0.0)
+    points = centre[:2, None] + s * d[:2]
     jac = np.empty((3, 2, d.shape[1]))
-    for j, dd in enumerate((d_roll, d_pitch)):
-        jac[j] = s * (dd[:2] - d[:2] * (dd[2] / np.where(down, d[2], -1.0)))
+    for j, (dd, dc) in enumerate(((d_roll, c_roll), (d_pitch, c_pitch))):
+        jac[j] = s * (dd[:2] - d[:2] * (dd[2] / safe_z)) + dc[:2, None] - d[:2] * (dc[2] / safe_z)
     jac[2] = d[:2] * (s / h)
     return points, jac, down
 
 
 def transfer_residuals(
-    params: np.ndarray, v1: np.ndarray, m2: np.ndarray, mounting: Mounting
+    params: np.ndarray, v1: np.ndarray, m2: np.ndarray, mounting: Mounting,
+    arm: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Residuals (2, N), Jacobian (9, 2, N) and validity (N,) of the tilted transfer.
 
@@ -120,15 +131,21 @@ def transfer_residuals(
         v1: (3, N) frame-1 rays rotated into base_link by the *configured* mounting.
         m2: (2, N) observed frame-2 normalized image coordinates.
         mounting: the configured mounting (its position and rotation).
+        arm: (3,) camera position minus the body's tilt pivot, base_link (default: none,
+            the camera tilts in place).
     """
     x, y, yaw = params[:3]
     a1, a2 = params[3:6], params[6:9]
     position = mounting.position
-    p1, dp1, down = _ground(v1, a1, position)
+    arm = np.zeros(3) if arm is None else np.asarray(arm, dtype=float)
+    p1, dp1, down = _ground(v1, a1, position, arm)
+    Rb2 = body_tilt(a2[0], a2[1])
+    swung_2 = Rb2 @ arm
+    centre_2 = position - arm + swung_2 + np.array([0.0, 0.0, a2[2]])
     c, s = np.cos(yaw), np.sin(yaw)
     rz_t = np.array([[c, s], [-s, c]])
     q = rz_t @ (p1 - np.array([[x], [y]]))
-    w = np.vstack([q - position[:2, None], np.full((1, q.shape[1]), -(position[2] + a2[2]))])
+    w = np.vstack([q - centre_2[:2, None], np.full((1, q.shape[1]), -centre_2[2])])
     rx_t = body_tilt(a2[0], 0.0).T
     ry_t = body_tilt(0.0, a2[1]).T
     optical_from_base = mounting.base_from_optical.T
@@ -146,8 +163,12 @@ def transfer_residuals(
     Gq_rz = Gq @ rz_t
     for j in range(3):
         dP[3 + j] = Gq_rz @ dp1[j]
+    # The camera also swings about the pivot: w = q - centre_2(a2).
+    c_roll, c_pitch = Rb2 @ np.cross(_E_X, arm), np.cross(_E_Y, swung_2)
     dP[6] = optical_from_base @ np.stack([np.zeros_like(u[0]), u[2], -u[1]])
+    dP[6] -= (G @ c_roll)[:, None]
     dP[7] = optical_from_base @ (rx_t @ -np.stack([u_y[2], np.zeros_like(u_y[0]), -u_y[0]]))
+    dP[7] -= (G @ c_pitch)[:, None]
     dP[8] = -G[:, 2][:, None]
     J = (dP[:, :2] - dP[:, 2:3] * m) * iz
     return m - m2, J, front
@@ -163,6 +184,7 @@ def refine_with_attitude(
     focal_px: float,
     threshold_px: float,
     iterations: int = 10,
+    arm: np.ndarray | None = None,
 ) -> JointResult:
     """Gauss-Newton over (motion, attitude 1, attitude 2) with the attitude priors.
 
@@ -175,6 +197,7 @@ def refine_with_attitude(
         v1: (N, 3) frame-1 rays in base_link through the configured mounting.
         m2: (N, 2) observed frame-2 normalized coordinates.
         threshold_px: inlier threshold on the transfer error.
+        arm: (3,) camera position minus the body's tilt pivot (default: tilts in place).
 
     Raises:
         PoseEstimationError: fewer than 3 correspondences fit.
@@ -189,7 +212,7 @@ def refine_with_attitude(
     threshold2 = (threshold_px / focal_px) ** 2
     inliers = np.zeros(v1.shape[0], bool)
     for i in range(iterations + 1):
-        r, J, front = transfer_residuals(params, v1_t, m2_t, mounting)
+        r, J, front = transfer_residuals(params, v1_t, m2_t, mounting, arm)
         squared = r[0] * r[0] + r[1] * r[1]
         selected = front & (squared < threshold2)
         changed = not np.array_equal(selected, inliers)

@@ -123,6 +123,11 @@ SCHEMA: tuple[Param, ...] = (
           'mean attitude, rad (1 sigma).', 1e-4, 0.5),
     Param('attitude_rate', 0.5, 'How fast the body tilts at most, rad/s (1 sigma); the actual '
           'rate is learned.', 1e-4, 20.0),
+    Param('body_pivot_below_camera', 0.0, 'With estimate_attitude: how far below the camera the '
+          'body tilts about (its centre of mass; about 0.6 m on a car), m. 0: the camera '
+          'tilts in place.', -5.0, 20.0),
+    Param('body_pivot_behind_camera', 0.0, 'With estimate_attitude: how far behind the camera '
+          'the body tilts about (negative: ahead of it), m.', -20.0, 20.0),
     Param('estimate_height', True, "Also estimate the camera height's change between frames "
           '(body bounce); each frame pair starts from camera_height, which stays the scale.'),
     Param('bounce_sigma', 0.03, 'With estimate_height: how far the camera height moves from '

@@ -176,6 +176,8 @@ class VisualOdometry:
                          'time_jumps': 0, 'blank': 0, 'skipped': 0}
         self._rng = np.random.default_rng(0)
         self.attitude_noise = attitude  # None: the mounting is taken as rigid and exact
+        # Camera position minus the body's tilt pivot, base_link: the camera swings with it.
+        self.pivot_arm = np.zeros(3) if attitude is None else attitude.pivot_arm
         self.self_calibrate = self_calibrate and attitude is not None
         self.configured_mounting = mounting
         self.calibrator = MountingCalibrator(mounting)
@@ -406,7 +408,7 @@ class VisualOdometry:
         """The mounting tilted by the current attitude estimate, and its transfer model."""
         if self.attitude_noise is None:
             return self.mounting, self._model
-        mounting = tilted_mounting(self.mounting, self.attitude)
+        mounting = tilted_mounting(self.mounting, self.attitude, self.pivot_arm)
         return mounting, TransferModel.from_camera(mounting, self.camera)
 
     def _estimate(self, stamp: float, t0: float) -> FrameResult:
@@ -487,7 +489,7 @@ class VisualOdometry:
         v1 = rays1 @ self.mounting.base_from_optical.T
         joint = refine_with_attitude(
             est.motion, v1, m2, self.mounting, prior, focal_px=model.focal_px,
-            threshold_px=self.inlier_threshold)
+            threshold_px=self.inlier_threshold, arm=self.pivot_arm)
         # The height's change between frames absorbs the body's vertical motion, but each
         # pair starts again from the configured height: the mean height is the scale, and a
         # height carried from pair to pair would drift with it.
@@ -599,15 +601,18 @@ class AttitudeNoise:
     tilt_rate: float  # rad/s
     height_sigma: float  # m
     height_rate: float  # m/s
+    pivot_arm: np.ndarray = field(default_factory=lambda: np.zeros(3))  # camera - pivot, m
 
     @classmethod
     def from_params(cls, params: dict[str, Any]) -> AttitudeNoise:
         """From the ``attitude_*`` and ``bounce_*`` parameters."""
+        arm = np.array([params['body_pivot_behind_camera'], 0.0,
+                        params['body_pivot_below_camera']])
         if not params['estimate_height']:  # the height held at the configured one
             return cls(params['attitude_sigma'], params['attitude_rate'], _FIXED_HEIGHT,
-                       _FIXED_HEIGHT)
+                       _FIXED_HEIGHT, arm)
         return cls(params['attitude_sigma'], params['attitude_rate'], params['bounce_sigma'],
-                   params['bounce_rate'])
+                   params['bounce_rate'], arm)
 
     @property
     def offset_cov(self) -> np.ndarray:

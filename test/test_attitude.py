@@ -40,18 +40,32 @@ def test_transfer_agrees_with_the_mounting_path_and_its_jacobian_with_finite_dif
     params = np.array([0.4, 0.01, 0.03, 0.01, -0.02, 0.01, -0.005, 0.015, -0.01])
     r, J, valid = transfer_residuals(params, v1, np.zeros((2, len(rays))), MOUNTING)
     assert valid.all()
+    arm = np.array([-0.15, 0.05, 0.7])  # the body tilts about a pivot below the camera
     # The same prediction through camera.Mounting: tilted mountings and the 3-DoF transfer.
-    frame_1 = tilted_mounting(MOUNTING, params[3:6])
-    frame_2 = tilted_mounting(MOUNTING, params[6:9])
-    ground, _ = frame_1.ground_points(rays)
-    model = TransferModel(*frame_2.ground_to_optical(), 460.0, frame_2)
-    np.testing.assert_allclose(r, model.transfer(params[:3], ground).T, atol=1e-12)
-    for j in range(9):
-        step = np.zeros(9)
-        step[j] = 1e-7
-        r_plus = transfer_residuals(params + step, v1, np.zeros_like(r), MOUNTING)[0]
-        r_minus = transfer_residuals(params - step, v1, np.zeros_like(r), MOUNTING)[0]
-        np.testing.assert_allclose(J[j], (r_plus - r_minus) / 2e-7, atol=1e-6)
+    for lever in (None, arm):
+        r, J, _ = transfer_residuals(params, v1, np.zeros((2, len(rays))), MOUNTING, lever)
+        frame_1 = tilted_mounting(MOUNTING, params[3:6], lever)
+        frame_2 = tilted_mounting(MOUNTING, params[6:9], lever)
+        ground, _ = frame_1.ground_points(rays)
+        model = TransferModel(*frame_2.ground_to_optical(), 460.0, frame_2)
+        np.testing.assert_allclose(r, model.transfer(params[:3], ground).T, atol=1e-12)
+        for j in range(9):
+            step = np.zeros(9)
+            step[j] = 1e-7
+            r_plus = transfer_residuals(params + step, v1, np.zeros_like(r), MOUNTING, lever)[0]
+            r_minus = transfer_residuals(params - step, v1, np.zeros_like(r), MOUNTING, lever)[0]
+            np.testing.assert_allclose(J[j], (r_plus - r_minus) / 2e-7, atol=1e-6)
+
+
+def test_a_pivot_below_the_camera_moves_it_forward_when_the_body_pitches_down():
+    """Closed form: pitching down by p about a pivot d below moves the camera d sin p
+    forward and lowers it by d (1 - cos p)."""
+    level = Mounting(x=1.0, height=1.0)
+    p, d = 0.02, 0.6
+    tilted = tilted_mounting(level, np.array([0.0, p, 0.0]), np.array([0.0, 0.0, d]))
+    assert tilted.x == pytest.approx(1.0 + d * np.sin(p))
+    assert tilted.height == pytest.approx(1.0 - d * (1 - np.cos(p)))
+    assert tilted.pitch == pytest.approx(p)
 
 
 def test_recovers_known_tilts_with_a_consistent_covariance():
