@@ -144,9 +144,8 @@ def test_random_messages_between_good_frames(ros, node):  # noqa: F811
             info_pub.publish(junk)
             what = f'camera_info {junk.width}x{junk.height} {junk.distortion_model}'
         # Every good frame is answered (or send_lockstep fails); motion is estimated again
-        # within RECOVERY frames: a frame lost to bad input (or paired with a junk camera)
-        # costs up to two more at this bag's 0.5 m between frames, where KLT cannot bridge
-        # the doubled motion (see README).
+        # within RECOVERY frames: a camera frame lost to bad input costs three more at this
+        # bag's 0.5 m between frames, where KLT cannot bridge the doubled motion (README).
         odoms_after = [next_good() for _ in range(RECOVERY)]
         if not any(o.twist.covariance[0] < LOST_TWIST_VARIANCE for o in odoms_after):
             not_recovered.append(f'{i}: {what}')
