@@ -10,6 +10,8 @@ STAMP := $(VENV)/.installed
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export ROS_DOMAIN_ID ?= 42
 export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
+# The venv's console scripts (planar_vo_node, started by demo and bench) are found on PATH.
+export PATH := $(abspath $(VENV))/bin:$(PATH)
 
 .PHONY: venv test lint pytest demo bench soak paper clean
 

@@ -225,8 +225,9 @@ def run_live_benchmark(bag: Path, params_file: Path, *, frames: int = 150,
     def on_diagnostics(msg: Any) -> None:
         for status in msg.status:
             values = {v.key: v.value for v in status.values}
-            if status.name.startswith('planar_vo') and 'mean processing time (ms)' in values:
-                node_stats.append((int(values['frames']),
+            if ('planar_vo' in status.name and 'mean processing time (ms)' in values
+                    and 'frames processed' in values):
+                node_stats.append((int(values['frames processed']),
                                    float(values['mean processing time (ms)'])))
 
     session.node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
