@@ -22,6 +22,11 @@ def test_reports_the_reference_pipeline_ratios_and_the_runs_accuracy(capsys):
     assert ratios['whole_frame_over_reference'] == pytest.approx(
         median['whole_frame_with_decode'] / median['opencv_reference_pipeline'])
     assert set(out['bars']) == set(ratios)
+    # What attitude estimation adds, measured on the same frames in the same run.
+    assert np.isfinite(median['whole_frame_with_attitude'])
+    assert ratios['attitude_over_whole_frame'] == pytest.approx(
+        median['whole_frame_with_attitude'] / median['whole_frame_with_decode'])
+    assert abs(out['accuracy']['planar_vo_attitude']['scale_ratio'] - 1) < 0.02
     # Both pipelines hold about the same number of tracks: the ratio compares like with like.
     assert 300 <= out['tracks_per_frame']['opencv_reference'] <= 400
     assert 300 <= out['tracks_per_frame']['planar_vo'] <= 400
