@@ -21,7 +21,7 @@ import yaml
 
 from planar_vo.bag import BagError
 from planar_vo.calibration import MountingEstimate
-from planar_vo.config import NODE_NAME, ConfigError, load_params_file, validate
+from planar_vo.config import NODE_NAME, ConfigError, load_params_file, params_section, validate
 from planar_vo.replay import ReplayError, replay
 
 __all__ = ['main', 'calibrate']
@@ -80,11 +80,7 @@ def _determined(estimate: MountingEstimate,
 
 def _raw_section(path: Path) -> dict[str, Any]:
     """IN's own parameters, as written (validated by :func:`load_params_file` first)."""
-    data = yaml.safe_load(path.read_text()) or {}
-    for key in (NODE_NAME, f'/{NODE_NAME}', '/**', '**'):
-        if isinstance(data.get(key), dict) and 'ros__parameters' in data[key]:
-            return dict(data[key]['ros__parameters'])
-    return {}
+    return dict(params_section(yaml.safe_load(path.read_text())) or {})
 
 
 def _parser() -> argparse.ArgumentParser:

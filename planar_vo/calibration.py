@@ -26,7 +26,7 @@ import numpy as np
 from planar_vo.attitude import tilted_mounting
 from planar_vo.camera import Mounting
 
-__all__ = ['MountingCalibrator', 'MountingEstimate', 'mounting_advice']
+__all__ = ['MountingCalibrator', 'MountingEstimate', 'mounting_advice', 'calibrated_params']
 
 # Body tilt samples are correlated over about this long (suspension and road), s: the
 # standard deviation of the mean tilt counts one independent sample per interval.
@@ -37,6 +37,12 @@ _APPLY_YAW_STD, _APPLY_X_STD = np.radians(0.15), 0.03
 # it to a third of that (rad, m).
 _ADVICE = {'camera_pitch': np.radians(0.5), 'camera_roll': np.radians(0.5),
            'camera_yaw': np.radians(0.5), 'camera_x': 0.1}
+
+
+def calibrated_params(mounting: Mounting) -> dict[str, float]:
+    """The ``camera_*`` parameters self-calibration learns, as ``mounting`` has them."""
+    return {'camera_roll': mounting.roll, 'camera_pitch': mounting.pitch,
+            'camera_yaw': mounting.yaw, 'camera_x': mounting.x}
 
 
 @dataclass(frozen=True)
@@ -53,9 +59,7 @@ class MountingEstimate:
 
     def as_params(self) -> dict[str, float]:
         """The estimate as ``camera_*`` parameter values."""
-        m = self.mounting
-        return {'camera_roll': m.roll, 'camera_pitch': m.pitch, 'camera_yaw': m.yaw,
-                'camera_x': m.x}
+        return calibrated_params(self.mounting)
 
 
 class MountingCalibrator:
@@ -159,8 +163,7 @@ class MountingCalibrator:
 def mounting_advice(configured: Mounting, estimate: MountingEstimate) -> dict[str, str]:
     """One line per parameter the drive says is off (> 0.5 deg, > 0.1 m): what to set."""
     advice = {}
-    now = {'camera_roll': configured.roll, 'camera_pitch': configured.pitch,
-           'camera_yaw': configured.yaw, 'camera_x': configured.x}
+    now = calibrated_params(configured)
     for name, value in estimate.as_params().items():
         off, std = value - now[name], estimate.std[name]
         if abs(off) <= _ADVICE[name] or not std < _ADVICE[name] / 3:

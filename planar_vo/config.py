@@ -14,7 +14,7 @@ from typing import Any
 import yaml
 
 __all__ = ['Param', 'SCHEMA', 'ConfigError', 'defaults', 'validate', 'load_params_file',
-           'MOUNTING_PARAMS']
+           'params_section', 'MOUNTING_PARAMS']
 
 NODE_NAME = 'planar_vo'
 
@@ -162,6 +162,15 @@ def validate(values: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def params_section(data: Any, node_name: str = NODE_NAME) -> Any:
+    """The ``ros__parameters`` of ``node_name`` (or a wildcard) in a loaded params YAML."""
+    if isinstance(data, dict):
+        for key in (node_name, f'/{node_name}', '/**', '**'):
+            if isinstance(data.get(key), dict) and 'ros__parameters' in data[key]:
+                return data[key]['ros__parameters']
+    return None
+
+
 def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, Any]:
     """Read a ROS 2 params YAML (``<node>: ros__parameters: {...}``) and validate it."""
     path = Path(path)
@@ -175,12 +184,7 @@ def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, 
         raise ConfigError(f'params file {path} is not valid YAML{where}') from err
     if data is None:
         return defaults()
-    section = None
-    if isinstance(data, dict):
-        for key in (node_name, f'/{node_name}', '/**', '**'):
-            if isinstance(data.get(key), dict) and 'ros__parameters' in data[key]:
-                section = data[key]['ros__parameters']
-                break
+    section = params_section(data, node_name)
     if not isinstance(section, dict):
         raise ConfigError(f'params file {path} has no "{node_name}: ros__parameters:" section')
     return validate(section)

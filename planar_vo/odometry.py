@@ -16,7 +16,12 @@ import numpy as np
 
 from planar_vo.attitude import AttitudePrior, refine_with_attitude, tilted_mounting
 from planar_vo.baselines import homography_motion
-from planar_vo.calibration import MountingCalibrator, MountingEstimate, mounting_advice
+from planar_vo.calibration import (
+    MountingCalibrator,
+    MountingEstimate,
+    calibrated_params,
+    mounting_advice,
+)
 from planar_vo.camera import (
     MAX_ROUND_TRIP_PX,
     CameraModel,
@@ -240,8 +245,7 @@ class VisualOdometry:
         if not self.self_calibrate:
             return {}, {}
         estimate, configured = self.mounting_estimate(), self.configured_mounting
-        now = {'camera_roll': configured.roll, 'camera_pitch': configured.pitch,
-               'camera_yaw': configured.yaw, 'camera_x': configured.x}
+        now = calibrated_params(configured)
         values = {}
         for name, value in estimate.as_params().items():
             std = estimate.std[name]
