@@ -80,6 +80,19 @@ def _guarded(where: str):
     return wrap
 
 
+def _received_monotonic(info: dict) -> float:
+    """When the middleware received the message, on the monotonic clock.
+
+    Not when the callback runs: frames queued while the node was busy (at start-up, say) would
+    otherwise arrive in a burst and make the usual image rate look several times too high.
+    """
+    now = time.monotonic()
+    received_ns = info.get('received_timestamp', 0) if isinstance(info, dict) else 0
+    if not received_ns:
+        return now
+    return now - min(max(time.time_ns() - received_ns, 0), 10**9) / 1e9
+
+
 class PlanarVoNode(Node):
     """Planar monocular visual odometry node."""
 
@@ -295,15 +308,15 @@ class PlanarVoNode(Node):
         self.camera = camera
 
     @_guarded('an image')
-    def _on_image(self, msg: Image) -> None:
-        self._receive(msg, messages.image_to_gray)
+    def _on_image(self, msg: Image, info: dict) -> None:
+        self._receive(msg, messages.image_to_gray, info)
 
     @_guarded('a compressed image')
-    def _on_compressed(self, msg: CompressedImage) -> None:
-        self._receive(msg, messages.compressed_to_gray)
+    def _on_compressed(self, msg: CompressedImage, info: dict) -> None:
+        self._receive(msg, messages.compressed_to_gray, info)
 
-    def _receive(self, msg, decode) -> None:
-        self._health.image_received(time.monotonic())
+    def _receive(self, msg, decode, info: dict) -> None:
+        self._health.image_received(_received_monotonic(info))
         for paired in self._pairing.add_image(_stamp_ns(msg.header.stamp), (msg, decode)):
             self._process(paired)
         if self._pairing.waiting:

@@ -50,7 +50,7 @@ def test_unexpected_exception_is_one_error_line_and_counted(in_process_node, cap
     listener.create_subscription(DiagnosticArray, '/diagnostics', got.append, 10)
     node._on_camera_info(info)
     for _ in range(3):  # not an Image: AttributeError deep in the decoding
-        assert node._on_image(object()) is None  # returns: the node is not taken down
+        assert node._on_image(object(), {}) is None  # returns: the node is not taken down
     end = time.monotonic() + 10
     while time.monotonic() < end and not any(
             kv.key == 'unexpected errors' and kv.value == '3'
@@ -80,3 +80,13 @@ def test_warnings_are_throttled_per_cause_with_bounded_memory(in_process_node, c
     for k in range(100):  # 100 distinct causes: only the most recent are remembered
         node._warn(f'cause {letters[k // 10]}{letters[k % 10]}')
     assert len(node._warned) == 64
+
+
+def test_an_image_counts_as_arrived_when_the_middleware_received_it():
+    """A frame queued 0.3 s while the node was busy arrived 0.3 s ago, not now."""
+    from planar_vo.node import _received_monotonic
+    before = time.monotonic()
+    queued = _received_monotonic({'received_timestamp': time.time_ns() - 300_000_000})
+    assert before - 0.31 < queued < time.monotonic() - 0.29
+    assert _received_monotonic({'received_timestamp': 0}) >= before  # not filled in: now
+    assert _received_monotonic({'received_timestamp': time.time_ns() + 10**9}) >= before
