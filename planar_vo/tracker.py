@@ -61,7 +61,7 @@ class Tracker:
 
     @property
     def window(self) -> int:
-        """Lucas-Kanade window size, px (what :mod:`planar_vo.window_bias` corrects for)."""
+        """Lucas-Kanade window size, px."""
         return self._lk['winSize'][0]
 
     def reset(self) -> None:
