@@ -14,7 +14,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from planar_vo.attitude import AttitudePrior, refine_with_attitude, tilted_mounting
+from planar_vo.attitude import (
+    AttitudePrior,
+    HeightSpread,
+    refine_with_attitude,
+    tilted_mounting,
+)
 from planar_vo.baselines import homography_motion
 from planar_vo.calibration import (
     MountingCalibrator,
@@ -227,6 +232,7 @@ class VisualOdometry:
         self.attitude_covariance = noise.offset_cov if noise else np.zeros((3, 3))
         self._rate2 = noise.rates ** 2 if noise else np.zeros(3)
         self._rate_samples = 0
+        self._height_spread = HeightSpread(variance=noise.offset_cov[2, 2] if noise else 0.0)
 
     def _attitude_offset(self) -> np.ndarray:
         if not self.self_calibrate:
@@ -496,11 +502,13 @@ class VisualOdometry:
             threshold_px=self.inlier_threshold, arm=self.pivot_arm)
         # The height's change between frames absorbs the body's vertical motion, but each
         # pair starts again from the configured height: the mean height is the scale, and a
-        # height carried from pair to pair would drift with it.
+        # height carried from pair to pair would drift with it (KLT's small bias in the
+        # change). How far the true height strays from it is the scale's uncertainty.
         attitude, covariance = joint.attitude.copy(), joint.attitude_covariance.copy()
         attitude[2] = 0.0
         covariance[2, :] = covariance[:, 2] = 0.0
-        covariance[2, 2] = _FIXED_HEIGHT ** 2
+        spread = self._height_spread.add(joint.change[2], joint.change_cov[2, 2], dt)
+        covariance[2, 2] = min(max(spread, _FIXED_HEIGHT ** 2), noise.offset_cov[2, 2])
         self.attitude, self.attitude_covariance = attitude, covariance
         self._learn_attitude_rate(joint.change, joint.change_cov, dt)
         if self.self_calibrate:
