@@ -503,19 +503,24 @@ class VisualOdometry:
         # The height's change between frames absorbs the body's vertical motion, but each
         # pair starts again from the configured height: the mean height is the scale, and a
         # height carried from pair to pair would drift with it (KLT's small bias in the
-        # change). How far the true height strays from it is the scale's uncertainty.
+        # change).
         attitude, covariance = joint.attitude.copy(), joint.attitude_covariance.copy()
         attitude[2] = 0.0
         covariance[2, :] = covariance[:, 2] = 0.0
-        spread = self._height_spread.add(joint.change[2], joint.change_cov[2, 2], dt)
-        covariance[2, 2] = min(max(spread, _FIXED_HEIGHT ** 2), noise.offset_cov[2, 2])
+        covariance[2, 2] = _FIXED_HEIGHT ** 2
         self.attitude, self.attitude_covariance = attitude, covariance
+        # How far the true height strays from the mean (the bounce) is the step's scale
+        # uncertainty: the step is proportional to the first frame's height.
+        spread = min(self._height_spread.add(joint.change[2], joint.change_cov[2, 2], dt),
+                     noise.offset_cov[2, 2])
+        per_metre = np.r_[joint.motion[:2], 0.0] / self.mounting.height
+        motion_cov = joint.covariance + spread * np.outer(per_metre, per_metre)
         self._learn_attitude_rate(joint.change, joint.change_cov, dt)
         if self.self_calibrate:
             self.calibrator.add(joint.motion, joint.covariance, joint.attitude, dt)
             if self.calibrator.apply():
                 self._use_mounting(self.calibrator.working)
-        return RansacResult(joint.motion, joint.covariance, joint.inliers, est.hypotheses,
+        return RansacResult(joint.motion, motion_cov, joint.inliers, est.hypotheses,
                             joint.rms_px)
 
     def _use_mounting(self, mounting: Mounting) -> None:
