@@ -191,7 +191,6 @@ class VisualOdometry:
         self.self_calibrate = self_calibrate and attitude is not None
         self.configured_mounting = mounting
         self.calibrator = MountingCalibrator(mounting)
-        self._resized = False  # set_camera changed the image size: restart tracking
         self._update_geometry(camera, mounting, check_round_trip=True)
         self.reset()
 
@@ -266,14 +265,16 @@ class VisualOdometry:
         return values, mounting_advice(configured, estimate)
 
     def set_camera(self, camera: CameraModel) -> None:
-        """New intrinsics (e.g. a changed CameraInfo); tracks stay unless the size changed.
+        """New intrinsics (e.g. a changed CameraInfo); tracks stay.
+
+        Tracking restarts only when the next image processed differs in size from the last
+        one tracked: a camera briefly of another size (a wrong CameraInfo, then the right one
+        again) costs only the frames it made unusable.
 
         Raises CameraModelError (and keeps the old camera) when the lens model cannot be
         inverted over the ground region.
         """
-        resized = (camera.width, camera.height) != (self.camera.width, self.camera.height)
         self._update_geometry(camera, self.mounting, check_round_trip=True)
-        self._resized |= resized
 
     def set_pose(self, pose: np.ndarray, covariance: np.ndarray) -> None:
         """Continue from ``pose`` (x, y, yaw in odom) with ``covariance`` (3x3); tracks stay.
@@ -365,13 +366,12 @@ class VisualOdometry:
                    f'stamps {gap:.3f} s apart, over max_frame_gap {self.max_frame_gap:g} s')
             return self._result(stamp, 'time_jump', t0,
                                 message=f'time jumped ({why}): tracking restarted')
-        if self._resized and self._last_stamp is not None:
+        last = self.tracker.image_shape
+        if last is not None and last != gray.shape and self._last_stamp is not None:
             self._restart(stamp, extrapolate=True)
             self._detect(is_reference=True, gray=gray)
-            self._resized = False
             return self._result(stamp, 'reinitialized', t0,
                                 message='image size changed: tracking restarted')
-        self._resized = False
         previous, self._last_stamp = self._last_stamp, stamp
         if self._ref_stamp is None:
             self._ref_stamp = stamp

@@ -64,6 +64,11 @@ class Tracker:
         """Lucas-Kanade window size, px."""
         return self._lk['winSize'][0]
 
+    @property
+    def image_shape(self) -> tuple[int, int] | None:
+        """(height, width) of the last image tracked, None before the first."""
+        return None if self._image is None else self._image.shape[:2]
+
     def reset(self) -> None:
         """Forget every track; the last image stays, so new tracks can start in it."""
         self.points = np.zeros((0, 2), np.float32)  # (N, 2) in the current image

@@ -197,6 +197,24 @@ def test_set_pose_continues_from_the_given_pose_and_covariance():
     assert results[0].pose_covariance[0, 0] >= 0.04 and results[0].pose_covariance[1, 1] >= 0.09
 
 
+def test_a_camera_briefly_of_another_size_keeps_the_tracks():
+    """A wrong CameraInfo (another size) used for one frame, then the right one again: only
+    that frame is lost; the next is measured from the tracks of the frame before it."""
+    from planar_vo.camera import CameraModel
+    vo, camera, images, truth = _render('gentle', 30)
+    results = [vo.process(images[k], k / 30.0) for k in range(20)]
+    vo.set_camera(CameraModel(camera.K, camera.D, camera.distortion_model, camera.width + 1,
+                              camera.height))
+    results.append(vo.process(images[20], 20 / 30.0))
+    vo.set_camera(camera)
+    results += [vo.process(images[k], k / 30.0) for k in range(21, 30)]
+    assert results[20].status == 'skipped'
+    assert [r.status for r in results[21:]] == ['ok'] * 9
+    expected = _relative(truth[19], truth[29])
+    got = _relative(results[19].pose, results[29].pose)
+    assert np.hypot(*(got[:2] - expected[:2])) < 0.01 and abs(got[2] - expected[2]) < 0.002
+
+
 def test_a_new_image_size_restarts_tracking_and_keeps_the_motion():
     """Binning switched on mid-run: a CameraInfo of the new size, tracking restarts."""
     import cv2
