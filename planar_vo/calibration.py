@@ -138,6 +138,19 @@ class MountingCalibrator:
                          + float(applied @ self._normal @ applied), 0.0)
         return True
 
+    def applied_covariance(self) -> np.ndarray:
+        """Covariance (2, 2) of the working yaw (rad) and camera_x (m) where they were applied.
+
+        Zero for what is still the configured value (taken as exact, as everywhere else).
+        """
+        _, cov = self._slip_fit()
+        applied = np.array([self.working.yaw != self.configured.yaw,
+                            self.working.x != self.configured.x])
+        if not np.any(applied):
+            return np.zeros((2, 2))
+        cov = np.where(np.outer(applied, applied), cov, 0.0)
+        return np.where(np.isfinite(cov), cov, 0.0)
+
     def estimate(self) -> MountingEstimate:
         """The static mounting learned so far."""
         theta, cov = self._slip_fit()

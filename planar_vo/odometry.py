@@ -520,6 +520,13 @@ class VisualOdometry:
             self.calibrator.add(joint.motion, joint.covariance, joint.attitude, dt)
             if self.calibrator.apply():
                 self._use_mounting(self.calibrator.working)
+            # What self-calibration applied is known only so well: a yaw off by eta moves
+            # the step sideways by x * eta (and rotates it), a camera_x off by dx by
+            # -yaw * dx. Right for one step (the twist); the pose, which adds the steps as
+            # if their errors were nearly independent, still undercounts this persistent one.
+            x, y, yaw = joint.motion
+            J = np.array([[-y, 0.0], [x, -yaw], [0.0, 0.0]])
+            motion_cov = motion_cov + J @ self.calibrator.applied_covariance() @ J.T
         return RansacResult(joint.motion, motion_cov, joint.inliers, est.hypotheses,
                             joint.rms_px)
 

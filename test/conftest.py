@@ -133,8 +133,9 @@ def sprung_body_params(scenario):
     body's pivot (its centre of mass) relative to the camera. None for a rigid body.
 
     The mounting configured is the true one and is kept: self-calibration (tested in
-    test_mounting) moves it by up to 0.1 deg in the first seconds, and that uncertainty is
-    not in the covariance yet (1 s pose NEES 6.0 and 7.3 with it, 3.1 and 2.6 without).
+    test_mounting) moves it by up to 0.1 deg in the first seconds, and the pose covariance
+    does not hold that persistent error yet (1 s pose NEES 6.5 and 6.6 with it, 3.1 and 2.6
+    without; the twist's is in: 2.1 and 1.9).
     """
     from planar_vo import synth
     sc = synth.SCENARIOS[scenario]

@@ -127,3 +127,24 @@ def test_height_spread_learns_the_bounce_not_the_noise_or_the_bias():
                    np.diff(height) - 0.0001 + rng.normal(0, 0.0003, len(t) - 1)]
         assert low <= np.sqrt(np.mean(learned[-300:])) <= high, np.sqrt(np.mean(learned[-300:]))
         assert np.sqrt(learned[0]) > 0.02  # starts from the configured spread
+
+
+def test_self_calibration_reports_the_uncertainty_of_what_it_applied():
+    """Steps that slip sideways by rho * eta (a camera yawed eta off): the calibrator applies
+    -eta to the working yaw and says how well it knows it; nothing applied, nothing said."""
+    from planar_vo.calibration import MountingCalibrator
+    calibrator = MountingCalibrator(MOUNTING)
+    assert not calibrator.applied_covariance().any()
+    rng = np.random.default_rng(5)
+    eta, cov = np.radians(0.4), np.diag([1e-6, 1e-6, 1e-8])
+    for k in range(300):
+        rho, yaw = 0.2, 0.02 * np.sin(k / 20)
+        c, s = np.cos(yaw / 2), np.sin(yaw / 2)
+        slip = rho * eta + rng.normal(0, 1e-3)
+        motion = np.array([c * rho - s * slip, s * rho + c * slip, yaw])
+        calibrator.add(motion, cov, np.zeros(3), 1 / 30)
+    assert calibrator.apply()
+    assert abs(calibrator.working.yaw - (MOUNTING.yaw - eta)) < np.radians(0.03)
+    applied = calibrator.applied_covariance()
+    yaw_std = calibrator.estimate().std['camera_yaw']
+    assert 0 < applied[0, 0] and np.isclose(np.sqrt(applied[0, 0]), yaw_std)
