@@ -8,6 +8,7 @@ No ROS imports: the node feeds it receive times (monotonic s) and frame results.
 
 from __future__ import annotations
 
+import bisect
 from collections import deque
 from typing import Any
 
@@ -35,9 +36,13 @@ class Health:
         self.processing_ms = self._ms_sum = 0.0
 
     def image_received(self, now: float) -> None:
-        """An image arrived at ``now`` (monotonic s), whether or not it could be used."""
-        self._arrivals.append(now)
-        self._last_arrival = now
+        """An image arrived at ``now`` (monotonic s), whether or not it could be used.
+
+        Arrival times may come out of order (images queued while the node was busy are
+        dated when they were received): they are kept sorted.
+        """
+        bisect.insort(self._arrivals, now)
+        self._last_arrival = max(now, self._last_arrival or now)
 
     def frame_done(self, result: Any) -> None:
         """A FrameResult of the odometry."""
@@ -59,12 +64,15 @@ class Health:
         self.last_failure = reason
 
     def rate(self, now: float) -> float:
-        """Images per second over the last ``window`` s."""
+        """Images per second over the last ``window`` s (0 with fewer than two)."""
+        span = self._span(now)
+        return (len(self._arrivals) - 1) / span if span > 0 else 0.0
+
+    def _span(self, now: float) -> float:
+        """Seconds between the first and the last image of the last ``window`` s."""
         while self._arrivals and self._arrivals[0] < now - self.window:
             self._arrivals.popleft()
-        if len(self._arrivals) < 2:
-            return 0.0
-        return (len(self._arrivals) - 1) / max(self._arrivals[-1] - self._arrivals[0], 1e-9)
+        return self._arrivals[-1] - self._arrivals[0] if self._arrivals else 0.0
 
     def report(self, now: float, *, calibrated: bool) -> tuple[int, str, dict[str, str]]:
         """(level, message, values) at ``now``; call it about once a second."""
@@ -83,7 +91,9 @@ class Health:
         if rate > 0 and self._usual_rate and rate < 0.5 * self._usual_rate:
             problems.append((WARN, f'image rate {rate:.1f} Hz, below half of the usual '
                                    f'{self._usual_rate:.1f} Hz'))
-        if rate > 0:  # a lasting new rate becomes the usual one within ~15 reports
+        # A lasting new rate becomes the usual one within ~15 reports; a rate over a short
+        # span (the first images, two of a burst) is shown but not learned.
+        if rate > 0 and self._span(now) >= 0.25 * self.window:
             self._usual_rate = rate if self._usual_rate is None else (
                 (1 - self.smoothing) * self._usual_rate + self.smoothing * rate)
         level = max((lvl for lvl, _ in problems), default=OK)

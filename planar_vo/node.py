@@ -80,6 +80,9 @@ def _guarded(where: str):
     return wrap
 
 
+_MAX_QUEUED_NS = 60 * 10**9  # older than this, the system clock has stepped
+
+
 def _received_monotonic(info: dict) -> float:
     """When the middleware received the message, on the monotonic clock.
 
@@ -88,9 +91,10 @@ def _received_monotonic(info: dict) -> float:
     """
     now = time.monotonic()
     received_ns = info.get('received_timestamp', 0) if isinstance(info, dict) else 0
-    if not received_ns:
+    age = time.time_ns() - received_ns
+    if not received_ns or not 0 <= age < _MAX_QUEUED_NS:  # not filled in, or a clock step
         return now
-    return now - min(max(time.time_ns() - received_ns, 0), 10**9) / 1e9
+    return now - age / 1e9
 
 
 class PlanarVoNode(Node):

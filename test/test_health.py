@@ -82,3 +82,16 @@ def test_error_after_many_frames_without_estimate_and_worst_level_wins():
     level, message, _ = health.report(t + 2.0, calibrated=True)  # also stale
     assert level == ERROR
     assert 'tracking lost (image skipped: cannot decode)' in message and 'no image for' in message
+
+
+def test_images_dated_out_of_order_or_in_a_burst_give_no_absurd_rate():
+    """Images queued while the node was busy are dated when received, so they can come out
+    of order; two of a burst alone say nothing about the rate."""
+    health = Health()
+    health.image_received(10.0)
+    health.image_received(10.00001)
+    health.report(10.1, calibrated=True)  # 100 kHz for a moment: shown, not learned
+    for t in (10.4, 10.2, 10.3, 10.1, 10.6, 10.5):  # 10 Hz, handed over out of order
+        health.image_received(t)
+    assert abs(health.rate(10.7) - 7 / 0.6) < 1e-6  # 8 images over 0.6 s
+    assert health.report(10.7, calibrated=True)[0] == OK
