@@ -100,6 +100,9 @@ SCHEMA: tuple[Param, ...] = (
           'predicts where tracks went (from a prediction it uses at most 1).', 0, 8),
     Param('fb_threshold', 0.5, 'Forward-backward KLT check: max round-trip error, px.',
           0.05, 10.0),
+    Param('klt_prewarp', False, 'Warp the last image through the ground by the motion the '
+          'last twist predicts before KLT, so its windows do not deform (less bias in scale, '
+          'yaw and attitude; worse among many obstacles; about 1 ms a frame).'),
     Param('horizon_margin', math.radians(12.0),
           'Use only rays at least this far below the horizon, rad: points just below it are '
           'often not ground yet move like it.', 0.0, 1.4),

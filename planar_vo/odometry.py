@@ -44,6 +44,7 @@ from planar_vo.ransac import (
 )
 from planar_vo.tracker import Tracker
 from planar_vo.twist import TwistAtStamp, twist_motion
+from planar_vo.warp import GroundWarp
 
 __all__ = ['VisualOdometry', 'FrameResult', 'compose', 'ground_mask']
 
@@ -173,6 +174,7 @@ class VisualOdometry:
         max_frame_gap: float = 1.0,
         attitude: AttitudeNoise | None = None,
         self_calibrate: bool = True,
+        klt_prewarp: bool = False,
     ) -> None:
         self.tracker = tracker if tracker is not None else Tracker()  # empty is falsy
         self.horizon_margin = horizon_margin
@@ -189,6 +191,7 @@ class VisualOdometry:
         # Camera position minus the body's tilt pivot, base_link: the camera swings with it.
         self.pivot_arm = np.zeros(3) if attitude is None else attitude.pivot_arm
         self.self_calibrate = self_calibrate and attitude is not None
+        self.klt_prewarp = klt_prewarp  # see planar_vo.warp
         self.configured_mounting = mounting
         self.calibrator = MountingCalibrator(mounting)
         self._update_geometry(camera, mounting, check_round_trip=True)
@@ -209,7 +212,7 @@ class VisualOdometry:
             circular_refine=params['circular_refine'], min_inliers=params['min_inliers'],
             max_frame_gap=params['max_frame_gap'],
             attitude=AttitudeNoise.from_params(params) if params['estimate_attitude'] else None,
-            self_calibrate=params['self_calibrate'])
+            self_calibrate=params['self_calibrate'], klt_prewarp=params['klt_prewarp'])
 
     def reset(self) -> None:
         """Restart at the origin with no tracks."""
@@ -223,6 +226,7 @@ class VisualOdometry:
         self._last_stamp: float | None = None
         self._failed_frames = 0
         self._reset_attitude()
+        self._warp: GroundWarp | None = None
 
     def _reset_attitude(self) -> None:
         """Attitude known only as well as the body's spread around its learned mean."""
@@ -377,7 +381,14 @@ class VisualOdometry:
             self._ref_stamp = stamp
             self._detect(is_reference=True, gray=gray)
             return self._result(stamp, 'first', t0)
-        self.tracker.track(gray, self._predict_tracks(stamp - previous))
+        predicted = self._predict_tracks(stamp - previous)
+        warp = None
+        if predicted is not None and self.klt_prewarp and self._ref_stamp == previous:
+            if self._warp is None or self._warp.camera is not self.camera:
+                self._warp = GroundWarp(self.camera)
+            mounting, _ = self._current_geometry()
+            warp = self._warp.maps(mounting, twist_motion(self.twist, stamp - previous))
+        self.tracker.track(gray, predicted, warp)
         t_track = time.perf_counter()
         result = self._estimate(stamp, t0)
         result.timing_ms['track'] = 1e3 * (t_track - t0)

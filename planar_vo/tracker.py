@@ -85,7 +85,8 @@ class Tracker:
     def __len__(self) -> int:
         return len(self.points)
 
-    def track(self, gray: np.ndarray, predicted: np.ndarray | None = None) -> None:
+    def track(self, gray: np.ndarray, predicted: np.ndarray | None = None,
+              warp: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """Follow every track into ``gray`` (uint8, HxW); drop the ones that fail.
 
         Args:
@@ -94,39 +95,83 @@ class Tracker:
                 skipped frames stay within its reach. Without it KLT uses ``levels``, and
                 so do the tracks a prediction loses when it loses most of them (a jolt the
                 motion did not foresee).
+            warp: with ``predicted``, (map_x, map_y) of :class:`planar_vo.warp.GroundWarp`
+                for the same motion: KLT then matches the last image warped by it, so its
+                windows no longer deform. A track's position in the last image becomes where
+                the warp takes it from (within a pixel of where it was): use it only when the
+                last image is the reference.
         """
         if self._image is not None and len(self.points):
             prev = self.points.reshape(-1, 1, 2)
+            warped = np.zeros(len(prev), bool)
             if predicted is None:
                 cur, keep = self._follow(gray, prev, None, self.levels)
             else:
-                cur, keep = self._follow(gray, prev, predicted, self.predicted_levels)
+                predicted = np.asarray(predicted, np.float32).reshape(-1, 2)
+                if warp is not None:  # where the warp does not hold (sky), tracks end
+                    cur, keep, anchor = self._follow_warped(gray, predicted, warp)
+                    warped = keep.copy()
+                else:
+                    cur, keep = self._follow(gray, prev, predicted, self.predicted_levels)
                 lost = ~keep
                 if np.count_nonzero(lost) > _RETRY_LOST * len(keep):
                     cur[lost], keep[lost] = self._follow(gray, prev[lost], None, self.levels)
+            if np.any(warped):
+                self.reference = self.reference.copy()
+                self.reference[warped] = anchor[warped]
+                self.reference_normalized = self.reference_normalized.copy()
+                self.reference_normalized[warped] = self._normalize(anchor[warped])
             self.points, self.reference = cur[keep], self.reference[keep]
             self.reference_normalized = self.reference_normalized[keep]
             self.points_normalized = self._normalize(self.points)
         self._image = gray
 
+    def _follow_warped(self, gray: np.ndarray, predicted: np.ndarray,
+                       warp: tuple[np.ndarray, np.ndarray],
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """KLT from the last image warped by ``warp``, starting at ``predicted`` (N, 2).
+
+        Returns positions (N, 2), which tracks it followed (N,) bool, and each track's
+        position in the last image as the warp has it (N, 2).
+        """
+        map_x, map_y = warp
+        anchor = np.stack([_bilinear(map_x, predicted), _bilinear(map_y, predicted)], axis=1)
+        near = np.linalg.norm(anchor - self.points, axis=1) < 1.0  # the warp is sound there
+        if not np.any(near):
+            return np.empty_like(predicted), near, anchor
+        # Only the rows the windows can reach (the ground, below the horizon) are warped.
+        top = max(int(predicted[near, 1].min()) - 2 * self.window - 4, 0)
+        template = np.zeros_like(self._image)
+        template[top:] = cv2.remap(self._image, map_x[top:], map_y[top:], cv2.INTER_LINEAR,
+                                   borderMode=cv2.BORDER_REPLICATE)
+        cur = np.empty_like(predicted)
+        cur[near], ok = self._follow(gray, predicted[near].reshape(-1, 1, 2), predicted[near],
+                                     self.predicted_levels, image=template)
+        used = near.copy()
+        used[near] = ok
+        return cur, used, anchor.astype(np.float32)
+
     def _follow(self, gray: np.ndarray, prev: np.ndarray, start: np.ndarray | None,
-                levels: int) -> tuple[np.ndarray, np.ndarray]:
+                levels: int, image: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """KLT of ``prev`` (N, 1, 2) into ``gray`` from ``start`` (N, 2) or from ``prev``.
+
+        ``image``: the image ``prev`` is in (default: the last one).
 
         Returns:
             (positions (N, 2), which passed the forward-backward check (N,) bool).
         """
+        image = self._image if image is None else image
         if start is None:
             cur, ok, _ = cv2.calcOpticalFlowPyrLK(
-                self._image, gray, prev, None, maxLevel=levels, **self._lk)
+                image, gray, prev, None, maxLevel=levels, **self._lk)
         else:
             cur, ok, _ = cv2.calcOpticalFlowPyrLK(
-                self._image, gray, prev, start.reshape(-1, 1, 2).astype(np.float32),
+                image, gray, prev, start.reshape(-1, 1, 2).astype(np.float32),
                 flags=cv2.OPTFLOW_USE_INITIAL_FLOW, maxLevel=levels, **self._lk)
         # The check starts where the track came from, on as many levels as the forward pass
         # (fewer let more false tracks through when the motion is large).
         back, ok_back, _ = cv2.calcOpticalFlowPyrLK(
-            gray, self._image, cur, prev.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+            gray, image, cur, prev.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
             maxLevel=levels, **self._lk)
         fb = np.linalg.norm((back - prev).reshape(-1, 2), axis=1)
         h, w = gray.shape
@@ -228,6 +273,18 @@ class Tracker:
                 if len(taken) == deficit:
                     break
         return corners[taken].astype(np.float32)
+
+
+def _bilinear(grid: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``grid`` (H, W) interpolated at ``points`` (N, 2) pixel positions (x, y), clamped."""
+    h, w = grid.shape
+    x = np.clip(points[:, 0], 0, w - 1.001)
+    y = np.clip(points[:, 1], 0, h - 1.001)
+    x0, y0 = x.astype(np.int64), y.astype(np.int64)
+    fx, fy = x - x0, y - y0
+    top = grid[y0, x0] * (1 - fx) + grid[y0, x0 + 1] * fx
+    bottom = grid[y0 + 1, x0] * (1 - fx) + grid[y0 + 1, x0 + 1] * fx
+    return top * (1 - fy) + bottom * fy
 
 
 def _as_float64(pixels: np.ndarray) -> np.ndarray:

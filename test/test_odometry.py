@@ -234,3 +234,20 @@ def test_a_new_image_size_restarts_tracking_and_keeps_the_motion():
     # Frame 20's motion is extrapolated, the rest measured at half resolution.
     m = evaluate.metrics(poses(results), truth)
     assert m['final_drift_percent'] < 1.0, m
+
+
+@pytest.mark.parametrize('scenario, frames, rate', [('gentle', 150, 30.0), ('default', 90, 15.0)])
+def test_klt_prewarp_takes_out_the_bias_of_windows_that_deform(scenario, frames, rate):
+    """KLT matched against the last image warped by the predicted motion: measured t_rel
+    0.048 -> 0.032 % and r_rel 0.65 -> 0.30 deg/100 m on `gentle`, 0.072 -> 0.021 % and
+    0.79 -> 0.26 on `default` at 15 Hz."""
+    got = {}
+    for prewarp in (False, True):
+        results, truth = run_scenario(scenario, frames, rate=rate,
+                                      overrides={'klt_prewarp': prewarp})
+        assert all(r.status in ('first', 'ok') for r in results)
+        got[prewarp] = evaluate.metrics(poses(results), truth)
+    off, on = got[False], got[True]
+    assert on['t_rel_percent'] < 0.8 * off['t_rel_percent'], (on, off)
+    assert on['r_rel_deg_per_100m'] < 0.8 * off['r_rel_deg_per_100m'], (on, off)
+    assert on['t_rel_percent'] < 0.04, on
