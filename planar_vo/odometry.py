@@ -381,13 +381,13 @@ class VisualOdometry:
             self._ref_stamp = stamp
             self._detect(is_reference=True, gray=gray)
             return self._result(stamp, 'first', t0)
-        predicted = self._predict_tracks(stamp - previous)
+        mounting, model = self._current_geometry()
+        predicted = self._predict_tracks(stamp - previous, mounting, model)
         warp = None
         if predicted is not None and self.klt_prewarp and self._ref_stamp == previous:
             if self._warp is None or self._warp.camera is not self.camera:
                 self._warp = GroundWarp(self.camera)
-            mounting, _ = self._current_geometry()
-            warp = self._warp.maps(mounting, twist_motion(self.twist, stamp - previous))
+            warp = self._warp.maps(model, twist_motion(self.twist, stamp - previous))
         self.tracker.track(gray, predicted, warp)
         t_track = time.perf_counter()
         result = self._estimate(stamp, t0)
@@ -397,13 +397,16 @@ class VisualOdometry:
         result.timing_ms['total'] = 1e3 * (time.perf_counter() - t0)
         return result
 
-    def _predict_tracks(self, dt: float) -> np.ndarray | None:
-        """Pixels (N, 2) where ground tracks should be after ``dt`` at the last twist."""
+    def _predict_tracks(self, dt: float, mounting: Mounting,
+                        model: TransferModel) -> np.ndarray | None:
+        """Pixels (N, 2) where ground tracks should be after ``dt`` at the last twist.
+
+        ``mounting`` and ``model``: the current geometry (:meth:`_current_geometry`).
+        """
         points = self.tracker.points
         if not len(points) or not np.any(self.twist) or self.twist_covariance[0, 0] >= (
                 _LOST_TWIST_VARIANCE):
             return None
-        mounting, model = self._current_geometry()
         ground, valid = mounting.ground_points(rays_through(self.tracker.points_normalized))
         predicted = points.astype(np.float64)
         moved = model.transfer(twist_motion(self.twist, dt), ground[valid])

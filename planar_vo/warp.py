@@ -15,7 +15,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from planar_vo.camera import CameraModel, Mounting, rays_through
+from planar_vo.camera import CameraModel, rays_through
 from planar_vo.ransac import TransferModel
 
 __all__ = ['GroundWarp']
@@ -44,14 +44,14 @@ class GroundWarp:
         self._shape = (h, w)
         self._rays = rays_through(camera.normalize(np.c_[uu.ravel(), vv.ravel()]))
 
-    def maps(self, mounting: Mounting, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def maps(self, model: TransferModel, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(map_x, map_y), float32 (H, W), for the base_link ``motion`` (x, y, yaw).
 
-        Where each pixel of the image after the motion was in the one before; far outside
-        the image where the pixel sees no ground.
+        Where each pixel of the image after the motion was in the one before, through the
+        ground as ``model`` (its mounting) sees it; far outside the image where the pixel
+        sees no ground.
         """
-        model = TransferModel.from_camera(mounting, self.camera)
-        ground, valid = mounting.ground_points(self._rays)
+        ground, valid = model.mounting.ground_points(self._rays)
         coarse = np.full((len(self._rays), 2), -1e4)
         if np.any(valid):
             back = self.camera.distort(model.transfer(_inverse(motion), ground[valid]))

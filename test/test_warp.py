@@ -3,6 +3,7 @@
 import numpy as np
 
 from planar_vo.camera import CameraModel, Mounting
+from planar_vo.ransac import TransferModel
 from planar_vo.warp import GroundWarp
 from test.conftest import move_points, observe
 
@@ -26,7 +27,7 @@ def test_the_maps_take_each_ground_pixel_back_to_where_it_was():
     first = CAMERA.distort(observe(MOUNTING, points))
     second = CAMERA.distort(observe(MOUNTING, move_points(points, motion)))
     inside = np.all((second > 20) & (second < [620, 460]), axis=1)
-    map_x, map_y = GroundWarp(CAMERA).maps(MOUNTING, motion)
+    map_x, map_y = GroundWarp(CAMERA).maps(TransferModel.from_camera(MOUNTING, CAMERA), motion)
     back = np.c_[_bilinear(map_x, second[inside]), _bilinear(map_y, second[inside])]
     error = np.linalg.norm(back - first[inside], axis=1)
     assert inside.sum() > 100 and error.max() < 0.03, error.max()  # measured 0.011
