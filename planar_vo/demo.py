@@ -40,7 +40,7 @@ def run_demo(bag: Path, params_file: Path, *, plot: Path | None = None,
         status = session.close()
     stamps = [f[0] for f in stream.frames]
     got = [s for s in stamps if s in session.received]
-    live = np.array([planar_pose(session.received[s][1].pose.pose) for s in got]).reshape(-1, 3)
+    live = np.array([planar_pose(session.odometry(s).pose.pose) for s in got]).reshape(-1, 3)
     latency = session.latencies_ms(stamps[1:])
     out: dict[str, Any] = {
         'bag': str(bag), 'frames_sent': len(stamps), 'odom_received': len(got),

@@ -9,6 +9,7 @@ No ROS imports: the node feeds it receive times (monotonic s) and frame results.
 from __future__ import annotations
 
 import bisect
+import statistics
 from collections import deque
 from typing import Any
 
@@ -17,6 +18,7 @@ __all__ = ['Health', 'OK', 'WARN', 'ERROR']
 OK, WARN, ERROR = 0, 1, 2  # the levels of diagnostic_msgs/DiagnosticStatus
 _NEUTRAL = ('first', 'duplicate')  # statuses that say nothing about tracking
 _LOST_AFTER = 3  # frames in a row without an estimate before tracking counts as lost
+RECENT_FRAMES = 60  # the median processing time is over this many of the latest frames
 
 
 class Health:
@@ -34,6 +36,9 @@ class Health:
         self.last_status = 'waiting for images'
         self.tracks = self.inliers = self.frames = 0
         self.processing_ms = self._ms_sum = 0.0
+        # The median of the latest frames: a mean since start-up hides a slowdown, and one
+        # busy moment of a shared machine moves a mean but not a median.
+        self._recent_ms: deque[float] = deque(maxlen=RECENT_FRAMES)
 
     def image_received(self, now: float) -> None:
         """An image arrived at ``now`` (monotonic s), whether or not it could be used.
@@ -51,6 +56,7 @@ class Health:
         self.tracks, self.inliers = result.tracks, result.inliers
         self.processing_ms = float(result.timing_ms.get('total', 0.0))
         self._ms_sum += self.processing_ms
+        self._recent_ms.append(self.processing_ms)
         if result.status == 'ok':
             self._failed_in_a_row, self._restarted = 0, False
         elif result.status not in _NEUTRAL:
@@ -104,6 +110,8 @@ class Health:
             'tracks': str(self.tracks), 'inliers': str(self.inliers),
             'processing time (ms)': f'{self.processing_ms:.2f}',
             'mean processing time (ms)': f'{self._ms_sum / max(self.frames, 1):.2f}',
+            f'median processing time, last {RECENT_FRAMES} frames (ms)':
+                f'{statistics.median(self._recent_ms) if self._recent_ms else 0.0:.2f}',
             'frames without estimate in a row': str(self._failed_in_a_row),
             'last failure': self.last_failure or 'none',
         }

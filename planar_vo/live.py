@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import signal
+import struct
 import subprocess
 import threading
 import time
@@ -37,6 +38,16 @@ def local_dds_env() -> dict[str, str]:
     os.environ.pop('ROS_LOCALHOST_ONLY', None)  # deprecated in Jazzy; do not let it interfere
     os.environ.setdefault('ROS_DOMAIN_ID', str(101 + os.getpid() % 100))
     return dict(os.environ)
+
+
+def _cdr_stamp(cdr: bytes) -> float:
+    """header.stamp (s) of a serialized message that starts with a std_msgs/Header.
+
+    After the 4-byte CDR encapsulation (its second byte: 1 little-endian, 0 big-endian)
+    come stamp.sec (int32) and stamp.nanosec (uint32).
+    """
+    sec, nanosec = struct.unpack_from('<iI' if cdr[1] == 1 else '>iI', cdr, 4)
+    return float(sec) + 1e-9 * float(nanosec)  # as stamp_to_seconds: the same float
 
 
 @dataclass
@@ -97,27 +108,37 @@ class LiveSession:
             stdout=self._log, stderr=subprocess.STDOUT, env=env)
         self.ctx = Context()
         rclpy.init(context=self.ctx)
-        self.node = rclpy.create_node('planar_vo_player', context=self.ctx)
+        # The player is the instrument: no parameter services to wait on, odometry kept as
+        # the CDR bytes that came (decoded on demand), so its own Python costs little latency.
+        self.node = rclpy.create_node('planar_vo_player', context=self.ctx,
+                                      start_parameter_services=False)
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         topic = '/camera/image_raw' + ('/compressed' if compressed else '')
         self.image_pub = self.node.create_publisher(
             CompressedImage if compressed else Image, topic, reliable)
         self.info_pub = self.node.create_publisher(CameraInfo, '/camera/camera_info', reliable)
-        self.received: dict[float, tuple[float, Any]] = {}  # stamp → (receive time, odom)
+        self.received: dict[float, tuple[float, bytes]] = {}  # stamp → (receive time, CDR)
         self.sent: dict[float, float] = {}  # stamp → send time
         self._lock = threading.Lock()
         from nav_msgs.msg import Odometry
-        self.node.create_subscription(Odometry, '/odom', self._on_odom, 100)
+        self.node.create_subscription(Odometry, '/odom', self._on_odom, 100, raw=True)
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
         self._spin = threading.Thread(target=self.executor.spin, daemon=True)
         self._spin.start()
 
-    def _on_odom(self, msg: Any) -> None:
+    def _on_odom(self, cdr: bytes) -> None:
         now = time.perf_counter()
-        stamp = stamp_to_seconds(msg.header.stamp)
         with self._lock:
-            self.received.setdefault(stamp, (now, msg))
+            self.received.setdefault(_cdr_stamp(cdr), (now, cdr))
+
+    def odometry(self, stamp: float) -> Any:
+        """The nav_msgs/Odometry received for ``stamp``."""
+        from nav_msgs.msg import Odometry
+        from rclpy.serialization import deserialize_message
+        with self._lock:
+            cdr = self.received[stamp][1]
+        return deserialize_message(cdr, Odometry)
 
     def wait_connected(self, timeout: float = 30.0) -> None:
         """Wait for discovery both ways (matched counts, not a fixed sleep)."""

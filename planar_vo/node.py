@@ -119,6 +119,11 @@ class PlanarVoNode(Node):
             history=HistoryPolicy.KEEP_LAST, depth=5,
             reliability=ReliabilityPolicy.RELIABLE if p['image_reliability'] == 'reliable'
             else ReliabilityPolicy.BEST_EFFORT)
+        # CameraInfo first: when it and its image are both waiting, the executor takes them in
+        # this order, and the image is processed in its own callback instead of waiting for
+        # the CameraInfo's turn.
+        self._info_sub = self.create_subscription(
+            CameraInfo, 'camera_info', self._on_camera_info, qos_profile_sensor_data)
         if p['image_transport'] == 'compressed':
             topic = self.resolve_topic_name('image') + '/compressed'
             self._image_sub = self.create_subscription(
@@ -126,8 +131,6 @@ class PlanarVoNode(Node):
         else:
             topic = 'image'
             self._image_sub = self.create_subscription(Image, topic, self._on_image, image_qos)
-        self._info_sub = self.create_subscription(
-            CameraInfo, 'camera_info', self._on_camera_info, qos_profile_sensor_data)
         self._set_pose_sub = self.create_subscription(
             PoseWithCovarianceStamped, 'set_pose', self._on_set_pose, 10)
         self._odom_pub = self.create_publisher(Odometry, 'odom', 10)
@@ -386,15 +389,18 @@ class PlanarVoNode(Node):
 
     # ---------------------------------------------------------------- output
     def _publish(self, header, gray, result) -> None:
-        self._health.frame_done(result)
         p = self.params
+        odom = None
+        if result.status != 'duplicate':  # tf2 rejects a repeated stamp (TF_REPEATED_DATA)
+            # Odometry first: the bookkeeping below is not part of its latency.
+            odom = messages.odometry_from_result(result, header.stamp, p['odom_frame'],
+                                                 p['base_frame'], Odometry)
+            self._odom_pub.publish(odom)
+        self._health.frame_done(result)
         if result.message and result.status not in ('ok', 'first'):
             self._warn(f'{result.status}: {result.message}')
-        if result.status == 'duplicate':  # tf2 rejects a repeated stamp (TF_REPEATED_DATA)
+        if odom is None:
             return
-        odom = messages.odometry_from_result(result, header.stamp, p['odom_frame'],
-                                             p['base_frame'], Odometry)
-        self._odom_pub.publish(odom)
         if self._tf is not None and p['publish_tf']:
             self._tf.sendTransform(messages.transform_from_result(
                 result, header.stamp, p['odom_frame'], p['base_frame']))

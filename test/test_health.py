@@ -95,3 +95,18 @@ def test_images_dated_out_of_order_or_in_a_burst_give_no_absurd_rate():
         health.image_received(t)
     assert abs(health.rate(10.7) - 7 / 0.6) < 1e-6  # 8 images over 0.6 s
     assert health.report(10.7, calibrated=True)[0] == OK
+
+
+def test_median_processing_time_is_over_the_latest_frames_only():
+    from planar_vo.health import RECENT_FRAMES
+    health = Health()
+    slow = SimpleNamespace(status='ok', message='', tracks=200, inliers=150,
+                           timing_ms={'total': 50.0})
+    for _ in range(3 * RECENT_FRAMES):  # a slow start-up, then a steady 12.5 ms
+        health.frame_done(slow)
+    for k in range(RECENT_FRAMES):
+        health.image_received(k / 30.0)
+        health.frame_done(result('ok'))
+    _, _, values = health.report(RECENT_FRAMES / 30.0, calibrated=True)
+    assert values[f'median processing time, last {RECENT_FRAMES} frames (ms)'] == '12.50'
+    assert float(values['mean processing time (ms)']) > 40.0  # the mean still has the start

@@ -33,7 +33,7 @@ def test_node_at_real_rate_matches_replay_and_ground_truth(dds_env):
     missing = [s for s in stamps if s not in session.received]
     assert not missing, f'the node dropped {len(missing)} of {frames} frames at the bag rate'
     live = np.array([[m.pose.pose.position.x, m.pose.pose.position.y]
-                     for m in (session.received[s][1] for s in stamps)])
+                     for m in (session.odometry(s) for s in stamps)])
     offline = replay(DEFAULT_BAG, config.load_params_file(CONFIG))
     off_stamps, off_poses = offline.estimate.arrays()
     ia, ib = evaluate.associate(np.array(stamps), off_stamps)
