@@ -387,7 +387,7 @@ class VisualOdometry:
         if predicted is not None and self.klt_prewarp and self._ref_stamp == previous:
             if self._warp is None or self._warp.camera is not self.camera:
                 self._warp = GroundWarp(self.camera)
-            warp = self._warp.maps(model, twist_motion(self.twist, stamp - previous))
+            warp = self._warp.pixel_map(model, twist_motion(self.twist, stamp - previous))
         self.tracker.track(gray, predicted, warp)
         t_track = time.perf_counter()
         result = self._estimate(stamp, t0)

@@ -86,7 +86,7 @@ class Tracker:
         return len(self.points)
 
     def track(self, gray: np.ndarray, predicted: np.ndarray | None = None,
-              warp: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+              warp: np.ndarray | None = None) -> None:
         """Follow every track into ``gray`` (uint8, HxW); drop the ones that fail.
 
         Args:
@@ -95,7 +95,7 @@ class Tracker:
                 skipped frames stay within its reach. Without it KLT uses ``levels``, and
                 so do the tracks a prediction loses when it loses most of them (a jolt the
                 motion did not foresee).
-            warp: with ``predicted``, (map_x, map_y) of :class:`planar_vo.warp.GroundWarp`
+            warp: with ``predicted``, the (H, W, 2) map of :class:`planar_vo.warp.GroundWarp`
                 for the same motion: KLT then matches the last image warped by it, so its
                 windows no longer deform. A track's position in the last image becomes where
                 the warp takes it from (within a pixel of where it was): use it only when the
@@ -127,22 +127,21 @@ class Tracker:
         self._image = gray
 
     def _follow_warped(self, gray: np.ndarray, predicted: np.ndarray,
-                       warp: tuple[np.ndarray, np.ndarray],
+                       warp: np.ndarray,
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """KLT from the last image warped by ``warp``, starting at ``predicted`` (N, 2).
 
         Returns positions (N, 2), which tracks it followed (N,) bool, and each track's
         position in the last image as the warp has it (N, 2).
         """
-        map_x, map_y = warp
-        anchor = np.stack([_bilinear(map_x, predicted), _bilinear(map_y, predicted)], axis=1)
+        anchor = _bilinear(warp, predicted)
         near = np.linalg.norm(anchor - self.points, axis=1) < 1.0  # the warp is sound there
         if not np.any(near):
             return np.empty_like(predicted), near, anchor
         # Only the rows the windows can reach (the ground, below the horizon) are warped.
         top = max(int(predicted[near, 1].min()) - 2 * self.window - 4, 0)
         template = np.zeros_like(self._image)
-        template[top:] = cv2.remap(self._image, map_x[top:], map_y[top:], cv2.INTER_LINEAR,
+        template[top:] = cv2.remap(self._image, warp[top:], None, cv2.INTER_LINEAR,
                                    borderMode=cv2.BORDER_REPLICATE)
         cur = np.empty_like(predicted)
         cur[near], ok = self._follow(gray, predicted[near].reshape(-1, 1, 2), predicted[near],
@@ -276,12 +275,12 @@ class Tracker:
 
 
 def _bilinear(grid: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """``grid`` (H, W) interpolated at ``points`` (N, 2) pixel positions (x, y), clamped."""
-    h, w = grid.shape
+    """``grid`` (H, W, C) interpolated at ``points`` (N, 2) pixel positions (x, y), clamped."""
+    h, w = grid.shape[:2]
     x = np.clip(points[:, 0], 0, w - 1.001)
     y = np.clip(points[:, 1], 0, h - 1.001)
     x0, y0 = x.astype(np.int64), y.astype(np.int64)
-    fx, fy = x - x0, y - y0
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
     top = grid[y0, x0] * (1 - fx) + grid[y0, x0 + 1] * fx
     bottom = grid[y0 + 1, x0] * (1 - fx) + grid[y0 + 1, x0 + 1] * fx
     return top * (1 - fy) + bottom * fy

@@ -28,15 +28,18 @@ def _inverse(motion: np.ndarray) -> np.ndarray:
 
 
 class GroundWarp:
-    """Per-pixel maps of a camera's next image into its last one, through the ground.
+    """A per-pixel map of a camera's next image into its last one, through the ground.
 
-    The maps are computed on a grid of ``step`` pixels and interpolated (they are smooth),
-    so a frame costs a few thousand undistortions, not a whole image's.
+    The map is computed on a grid of ``step`` pixels and interpolated (it is smooth),
+    so a frame costs about a thousand undistortions, not a whole image's. KLT matches the
+    warped image at the warp's own positions (the anchors come from the same interpolated
+    map), so an interpolation error only deforms the windows a little: 0.04 px at 16 px
+    against a 4 px grid on the ``default`` camera, 0.009 px at 8 px for twice the cost.
     """
 
-    def __init__(self, camera: CameraModel, step: int = 8) -> None:
+    def __init__(self, camera: CameraModel, step: int = 16) -> None:
         self.camera, self.step = camera, step
-        w, h = camera.width // step, camera.height // step
+        w, h = -(-camera.width // step), -(-camera.height // step)
         # Cell centres, where cv2.resize puts the coarse samples when it scales by ``step``.
         u = np.arange(w) * step + (step - 1) / 2.0
         v = np.arange(h) * step + (step - 1) / 2.0
@@ -44,12 +47,12 @@ class GroundWarp:
         self._shape = (h, w)
         self._rays = rays_through(camera.normalize(np.c_[uu.ravel(), vv.ravel()]))
 
-    def maps(self, model: TransferModel, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(map_x, map_y), float32 (H, W), for the base_link ``motion`` (x, y, yaw).
+    def pixel_map(self, model: TransferModel, motion: np.ndarray) -> np.ndarray:
+        """The (H, W, 2) float32 map of (x, y) for the base_link ``motion`` (x, y, yaw).
 
         Where each pixel of the image after the motion was in the one before, through the
         ground as ``model`` (its mounting) sees it; far outside the image where the pixel
-        sees no ground.
+        sees no ground. ``cv2.remap(last, map, None, ...)`` takes it as it is.
         """
         ground, valid = model.mounting.ground_points(self._rays)
         coarse = np.full((len(self._rays), 2), -1e4)
@@ -57,6 +60,16 @@ class GroundWarp:
             back = self.camera.distort(model.transfer(_inverse(motion), ground[valid]))
             coarse[valid] = np.where(np.isfinite(back), back, -1e4)
         coarse = coarse.reshape(*self._shape, 2).astype(np.float32)
-        full = cv2.resize(coarse, (self.camera.width, self.camera.height),
+        # One sample more on every side, extrapolated linearly: every pixel then lies between
+        # samples (held at the edge value instead, the outer half cells were up to 8 px off).
+        h, w = self._shape
+        padded = np.empty((h + 2, w + 2, 2), np.float32)
+        padded[1:-1, 1:-1] = coarse
+        padded[0, 1:-1], padded[-1, 1:-1] = 2 * coarse[0] - coarse[1], 2 * coarse[-1] - coarse[-2]
+        padded[:, 0], padded[:, -1] = (2 * padded[:, 1] - padded[:, 2],
+                                       2 * padded[:, -2] - padded[:, -3])
+        step = self.step
+        full = cv2.resize(padded, ((w + 2) * step, (h + 2) * step),
                           interpolation=cv2.INTER_LINEAR)
-        return np.ascontiguousarray(full[..., 0]), np.ascontiguousarray(full[..., 1])
+        return np.ascontiguousarray(
+            full[step:step + self.camera.height, step:step + self.camera.width])
