@@ -100,9 +100,9 @@ SCHEMA: tuple[Param, ...] = (
           'predicts where tracks went (from a prediction it uses at most 1).', 0, 8),
     Param('fb_threshold', 0.5, 'Forward-backward KLT check: max round-trip error, px.',
           0.05, 10.0),
-    Param('klt_prewarp', False, 'Warp the last image through the ground by the motion the '
+    Param('klt_prewarp', True, 'Warp the last image through the ground by the motion the '
           'last twist predicts before KLT, so its windows do not deform (less bias in scale, '
-          'yaw and attitude; worse among many obstacles; about 1 ms a frame).'),
+          'yaw and attitude; about 0.5 ms a frame). Off: use inlier_threshold 1.0.'),
     Param('horizon_margin', math.radians(12.0),
           'Use only rays at least this far below the horizon, rad: points just below it are '
           'often not ground yet move like it.', 0.0, 1.4),
@@ -111,7 +111,8 @@ SCHEMA: tuple[Param, ...] = (
           '2 points (planar) or histogram voting; opencv_homography is the plain OpenCV '
           '4-point way, for comparison only.',
           choices=('1point', '2point', 'histogram', 'opencv_homography')),
-    Param('inlier_threshold', 1.0, 'RANSAC inlier threshold on the transfer error, px.',
+    Param('inlier_threshold', 0.5, 'RANSAC inlier threshold on the transfer error, px; keep '
+          'it about 3x the inlier rms error /diagnostics report (1.0 without klt_prewarp).',
           0.1, 20.0),
     Param('ransac_confidence', 0.999, 'Probability of drawing an all-inlier sample.',
           0.5, 0.999999),

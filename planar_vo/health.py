@@ -35,6 +35,7 @@ class Health:
         self.last_failure = ''
         self.last_status = 'waiting for images'
         self.tracks = self.inliers = self.frames = 0
+        self.rms_px = 0.0  # the last estimate's inlier rms error: inlier_threshold ~3x this
         self.processing_ms = self._ms_sum = 0.0
         # The median of the latest frames: a mean since start-up hides a slowdown, and one
         # busy moment of a shared machine moves a mean but not a median.
@@ -54,6 +55,7 @@ class Health:
         self.frames += 1
         self.last_status = result.status
         self.tracks, self.inliers = result.tracks, result.inliers
+        self.rms_px = float(result.rms_px)
         self.processing_ms = float(result.timing_ms.get('total', 0.0))
         self._ms_sum += self.processing_ms
         self._recent_ms.append(self.processing_ms)
@@ -108,6 +110,7 @@ class Health:
             'state': self.last_status,
             'image rate (Hz)': f'{rate:.2f}',
             'tracks': str(self.tracks), 'inliers': str(self.inliers),
+            'inlier rms error (px)': f'{self.rms_px:.3f}',
             'processing time (ms)': f'{self.processing_ms:.2f}',
             'mean processing time (ms)': f'{self._ms_sum / max(self.frames, 1):.2f}',
             f'median processing time, last {RECENT_FRAMES} frames (ms)':

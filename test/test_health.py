@@ -7,7 +7,7 @@ from planar_vo.health import ERROR, OK, WARN, Health
 
 def result(status, message=''):
     return SimpleNamespace(status=status, message=message, tracks=200, inliers=150,
-                           timing_ms={'total': 12.5})
+                           rms_px=0.125, timing_ms={'total': 12.5})
 
 
 def feed(health, start, stop, rate, status='ok'):
@@ -26,6 +26,7 @@ def test_ok_while_tracking_at_a_steady_rate():
     assert (level, message) == (OK, 'tracking')
     assert abs(float(values['image rate (Hz)']) - 30.0) < 0.5
     assert values['tracks'] == '200' and values['processing time (ms)'] == '12.50'
+    assert values['inlier rms error (px)'] == '0.125'
     assert values['last failure'] == 'none'
 
 
@@ -100,7 +101,7 @@ def test_images_dated_out_of_order_or_in_a_burst_give_no_absurd_rate():
 def test_median_processing_time_is_over_the_latest_frames_only():
     from planar_vo.health import RECENT_FRAMES
     health = Health()
-    slow = SimpleNamespace(status='ok', message='', tracks=200, inliers=150,
+    slow = SimpleNamespace(status='ok', message='', tracks=200, inliers=150, rms_px=0.1,
                            timing_ms={'total': 50.0})
     for _ in range(3 * RECENT_FRAMES):  # a slow start-up, then a steady 12.5 ms
         health.frame_done(slow)
