@@ -90,9 +90,8 @@ def test_twist_at_the_stamp_removes_the_lag_without_much_more_noise(scenario, fr
     """Against the truth at the stamp, the published vx is never worse than 1.5x the step
     mean (the issue's bar; on the constant-speed drive, where the step mean is right, it is
     1.2x) and beats it wherever the speed changes. Its error also stays within 2x the step
-    mean's noise (the step mean against the true step mean): extrapolating to the stamp
-    costs some noise and, at 15 Hz, the jerk it cannot see (measured 1.2-1.6x at 30 Hz,
-    1.9x at 15 Hz)."""
+    mean's noise (the step mean against the true step mean) and what the jerk it cannot
+    see does between the steps and the stamp."""
     results, truth, twist = drive(scenario, frames, rate)
     published, noise, lagged = [], [], []
     for k in range(1, frames):
@@ -105,7 +104,11 @@ def test_twist_at_the_stamp_removes_the_lag_without_much_more_noise(scenario, fr
         lagged.append(abs(mean_vx - twist[k, 0]))
     published, noise, lagged = np.median(published), np.median(noise), np.median(lagged)
     assert published <= 1.5 * lagged, (published, lagged)
-    assert published <= 2.0 * noise, (published, noise)
+    # Extrapolating from the last two step means to the stamp misses what the true speed's
+    # jerk J does in between: (3/8 + 1/24) J dt^2 (closed form for a constant jerk), the
+    # jerk taken from the renderer's speeds. At 15 Hz that is about the steps' own noise.
+    unseen = (3 / 8 + 1 / 24) * np.median(np.abs(np.diff(twist[:, 0], 2)))  # J dt^2 = d2v
+    assert published <= 2.0 * noise + unseen, (published, noise, unseen)
     # Where the speed changes the step mean lags behind, and on a rigid mount the twist at
     # the stamp beats it. On a sprung body each step's speed is noisier (the body's tilt and
     # bounce, 0.5-1 %), and extrapolating two steps to the stamp costs about what the lag
