@@ -7,8 +7,8 @@ Prints ratios, never absolute pass/fail timings (machines are shared and noisy):
 - a whole offline frame (bag decode included) vs the time its tracker takes (KLT from the
   predicted positions, and detection), and
   vs the plain OpenCV pipeline (:class:`planar_vo.baselines.OpenCVReference`, decode-free);
-- with ``--live``, the node's latency over DDS vs that whole-frame compute, and the highest
-  frame rate it keeps up with;
+- with ``--live``, the node's median latency over DDS vs its own median compute on the same
+  frames (as its /diagnostics report it), and the highest frame rate it keeps up with;
 - the accuracy of the run (planar_vo and the reference), so a speed gain that costs
   accuracy shows.
 """
