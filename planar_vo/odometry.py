@@ -384,12 +384,13 @@ class VisualOdometry:
             self._detect(is_reference=True, gray=gray)
             return self._result(stamp, 'first', t0)
         mounting, model = self._current_geometry()
-        predicted = self._predict_tracks(stamp - previous, mounting, model)
+        motion = twist_motion(self.twist, stamp - previous)  # the last twist's prediction
+        predicted = self._predict_tracks(motion, mounting, model)
         warp = None
         if predicted is not None and self.klt_prewarp and self._ref_stamp == previous:
             if self._warp is None or self._warp.camera is not self.camera:
                 self._warp = GroundWarp(self.camera)
-            warp = self._warp.pixel_map(model, twist_motion(self.twist, stamp - previous))
+            warp = self._warp.pixel_map(model, motion)
         self.tracker.track(gray, predicted, warp)
         t_track = time.perf_counter()
         result = self._estimate(stamp, t0)
@@ -399,9 +400,9 @@ class VisualOdometry:
         result.timing_ms['total'] = 1e3 * (time.perf_counter() - t0)
         return result
 
-    def _predict_tracks(self, dt: float, mounting: Mounting,
+    def _predict_tracks(self, motion: np.ndarray, mounting: Mounting,
                         model: TransferModel) -> np.ndarray | None:
-        """Pixels (N, 2) where ground tracks should be after ``dt`` at the last twist.
+        """Pixels (N, 2) where ground tracks should be after ``motion``, the last twist's.
 
         ``mounting`` and ``model``: the current geometry (:meth:`_current_geometry`).
         """
@@ -411,7 +412,7 @@ class VisualOdometry:
             return None
         ground, valid = mounting.ground_points(rays_through(self.tracker.points_normalized))
         predicted = points.astype(np.float64)
-        moved = model.transfer(twist_motion(self.twist, dt), ground[valid])
+        moved = model.transfer(motion, ground[valid])
         ok = np.all(np.isfinite(moved), axis=1)
         rows = np.flatnonzero(valid)[ok]
         predicted[rows] = self.camera.distort(moved[ok])
