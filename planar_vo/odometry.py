@@ -54,15 +54,22 @@ _UNSEEN_SPEED, _UNSEEN_YAW_RATE = 2.0, 0.5
 _LOST_TWIST_VARIANCE = 1e3
 _MAX_FAILED_FRAMES = 3  # frames in a row without an estimate before tracking counts as lost
 _RESTART_VARIANCE = (1.0, 1.0, 0.1)  # m², m², rad² added when a time jump restarts tracking
-# Consecutive motions share most of their tracks and their errors are not independent:
-# on the rendered drives they share a scene-dependent bias and correlations that die out
-# over several frames, so a sum of N motions has several times the variance of N
-# independent ones. Measured with klt_prewarp (whose motions are about twice as precise
-# step by step, which leaves the shared part larger): pose NEES over 1 s windows 14-46
-# without this, 1.6-5.1 with it (test_consistency), 1.3-4.8 on drives not used to choose
-# it (other seeds, 10-30 Hz); without the warp the factor was 4. The pose accumulates each
-# motion's covariance times this; the twist, one motion at a time, does not.
-_MOTION_ERROR_PERSISTENCE = 9.0
+# Consecutive motions share most of their tracks and their errors are not independent.
+# Two parts, measured on the rendered drives as the pose's NEES over windows of 0.25-2 s
+# (test_consistency checks 1 s):
+# - Errors correlated over about _ERROR_CORRELATION_S: a sum of motions over a longer window
+#   has coth(dt / 2 tau) times the variance of independent ones (exponentially correlated
+#   errors): 9 at 30 Hz, 4.6 at 15 Hz. Sideways and yaw NEES stay flat from 0.25 to 2 s.
+# - A scale error that does not die out: along-track NEES grows with the window as N^2, not
+#   N, and takes 0.02-0.034 % of the distance on every rigid drive, at every window length
+#   and at 15 and 30 Hz alike (the scale ratio of whole drives says the same). A pose
+#   covariance of independent increments cannot carry a persistent error at every window;
+#   each step adds the variance that makes it right over _SHARED_SCALE_WINDOW_S (half as
+#   much over 2 s windows, four times too much over 0.25 s).
+# The pose accumulates both; the twist, one motion at a time, neither.
+_ERROR_CORRELATION_S = 0.15
+_SHARED_SCALE_ERROR = 3e-4
+_SHARED_SCALE_WINDOW_S = 1.0
 # How fast the body moves is learned over about this long (s); never below (rad/s, m/s).
 _RATE_MEMORY_S = 2.0
 _MIN_RATE = np.array([3e-3, 3e-3, 1e-6])
@@ -576,7 +583,8 @@ class VisualOdometry:
     def _ref_pose_update(self, motion: np.ndarray, motion_cov: np.ndarray, dt: float) -> None:
         """Compose the motion measured since the reference; the twist at the new stamp."""
         self.pose, self.pose_covariance = compose(
-            self.pose, self.pose_covariance, motion, motion_cov * _MOTION_ERROR_PERSISTENCE)
+            self.pose, self.pose_covariance, motion,
+            _shared_error_covariance(motion, motion_cov, dt))
         self._twist_at_stamp = self._twist_at_stamp.add(
             self._ref_stamp, self._ref_stamp + dt, motion, motion_cov)
         self.twist, self.twist_covariance = self._twist_at_stamp.estimate()
@@ -671,6 +679,16 @@ def mounting_from_params(params: dict[str, Any]) -> Mounting:
     return Mounting(x=params['camera_x'], y=params['camera_y'], height=params['camera_height'],
                     roll=params['camera_roll'], pitch=params['camera_pitch'],
                     yaw=params['camera_yaw'])
+
+
+def _shared_error_covariance(motion: np.ndarray, covariance: np.ndarray,
+                             dt: float) -> np.ndarray:
+    """What one motion of ``dt`` s adds to the pose's covariance, errors shared included."""
+    dt = max(dt, 1e-3)
+    correlated = covariance / np.tanh(dt / (2.0 * _ERROR_CORRELATION_S))
+    along = np.r_[motion[:2], 0.0]
+    steps_in_window = _SHARED_SCALE_WINDOW_S / dt
+    return correlated + _SHARED_SCALE_ERROR ** 2 * steps_in_window * np.outer(along, along)
 
 
 def _with_size(camera: CameraModel, shape: tuple[int, int]) -> CameraModel:
