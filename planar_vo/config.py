@@ -95,7 +95,8 @@ SCHEMA: tuple[Param, ...] = (
     Param('quality_level', 0.005, 'Shi-Tomasi quality relative to the best corner.',
           1e-5, 0.5),
     Param('min_distance', 8.0, 'Minimum distance between features, px.', 1.0, 100.0),
-    Param('klt_window', 15, 'Lucas-Kanade window size, px (odd).', 5, 101),
+    Param('klt_window', 25, 'Lucas-Kanade window size, px (odd). Larger averages more pixels '
+          'but costs more; without klt_prewarp 15 is better (the window deforms).', 5, 101),
     Param('klt_levels', 3, 'Pyramid levels above the full image for KLT when no motion '
           'predicts where tracks went (from a prediction it uses at most 1).', 0, 8),
     Param('fb_threshold', 0.5, 'Forward-backward KLT check: max round-trip error, px.',
