@@ -75,6 +75,7 @@ _RATE_MEMORY_S = 2.0
 _MIN_RATE = np.array([3e-3, 3e-3, 1e-6])
 _FIXED_HEIGHT = 1e-6  # m, m/s: the height's spread and rate when it is not estimated
 _MASK_REDRAW_YAW = np.radians(0.5)
+_WARPED_KLT_WINDOW = 25
 
 
 @dataclass
@@ -176,16 +177,18 @@ class VisualOdometry:
         tracker: Tracker | None = None,
         horizon_margin: float = np.radians(12.0),
         ransac_method: str = '1point',
-        inlier_threshold: float = 1.0,
+        inlier_threshold: float = 0.5,
         ransac_confidence: float = 0.999,
         circular_refine: bool = False,
         min_inliers: int = 12,
         max_frame_gap: float = 1.0,
         attitude: AttitudeNoise | None = None,
         self_calibrate: bool = True,
-        klt_prewarp: bool = False,
+        klt_prewarp: bool = True,
     ) -> None:
-        self.tracker = tracker if tracker is not None else Tracker()  # empty is falsy
+        # The defaults are the parameter schema's (a test holds them to it); the tracker's
+        # window is the one for the warp (Tracker's own default suits KLT without it).
+        self.tracker = tracker if tracker is not None else Tracker(window=_WARPED_KLT_WINDOW)
         self.horizon_margin = horizon_margin
         self.ransac_method = ransac_method
         self.inlier_threshold = inlier_threshold

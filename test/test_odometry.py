@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from planar_vo import evaluate
-from planar_vo.odometry import compose
+from planar_vo import config, evaluate
+from planar_vo.camera import CameraModel, Mounting
+from planar_vo.odometry import VisualOdometry, compose
 from test.conftest import drive, run_scenario
 
 
@@ -257,3 +258,21 @@ def test_klt_prewarp_takes_out_the_bias_of_windows_that_deform(scenario, frames,
     if scenario != 'obstacles':  # there, as good, not better
         assert on['t_rel_percent'] < 0.85 * off['t_rel_percent'], (on, off)
         assert on['r_rel_deg_per_100m'] < 0.6 * off['r_rel_deg_per_100m'], (on, off)
+
+
+def test_constructor_defaults_are_the_parameter_schemas():
+    """Library users who build VisualOdometry directly get what the node runs by default."""
+    K = np.array([[460.0, 0.0, 320.0], [0.0, 460.0, 240.0], [0.0, 0.0, 1.0]])
+    camera = CameraModel(K, np.zeros(5), 'plumb_bob', 640, 480)
+    mounting = Mounting(x=1.2, y=0.0, height=1.25, roll=0.0, pitch=np.radians(8.0), yaw=0.0)
+    direct = VisualOdometry(camera, mounting)
+    params = {**config.defaults(), 'camera_x': 1.2, 'camera_y': 0.0, 'camera_height': 1.25,
+              'camera_roll': 0.0, 'camera_pitch': np.radians(8.0), 'camera_yaw': 0.0}
+    schema = VisualOdometry.from_params(camera, params)
+    for name in ('horizon_margin', 'ransac_method', 'inlier_threshold', 'ransac_confidence',
+                 'circular_refine', 'min_inliers', 'max_frame_gap', 'klt_prewarp',
+                 'attitude_noise', 'self_calibrate'):
+        assert getattr(direct, name) == getattr(schema, name), name
+    for name in ('max_features', 'quality_level', 'min_distance', 'window', 'levels',
+                 'fb_threshold'):
+        assert getattr(direct.tracker, name) == getattr(schema.tracker, name), name
