@@ -7,6 +7,7 @@ No ROS imports: the node and the replay CLI are thin adapters around :class:`Vis
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -527,6 +528,11 @@ class VisualOdometry:
         joint = refine_with_attitude(
             est.motion, v1, m2, self.mounting, prior, focal_px=model.focal_px,
             threshold_px=self.inlier_threshold, arm=self.pivot_arm)
+        # A pair too thin to count as estimated must not teach the attitude, its rate, the
+        # height's spread or the mounting anything: reject it before any of them changes.
+        count = int(np.count_nonzero(joint.inliers))
+        if count < self.min_inliers:
+            raise PoseEstimationError(f'{count} inliers, fewer than {self.min_inliers}')
         # The height's change between frames absorbs the body's vertical motion, but each
         # pair starts again from the configured height: the mean height is the scale, and a
         # height carried from pair to pair would drift with it (KLT's small bias in the
@@ -538,6 +544,8 @@ class VisualOdometry:
         self.attitude, self.attitude_covariance = attitude, covariance
         # How far the true height strays from the mean (the bounce) is the step's scale
         # uncertainty: the step is proportional to the first frame's height.
+        # Replaced, not changed in place: process() restores attributes when a frame fails.
+        self._height_spread = dataclasses.replace(self._height_spread)
         spread = min(self._height_spread.add(joint.change[2], joint.change_cov[2, 2], dt),
                      noise.offset_cov[2, 2])
         per_metre = np.r_[joint.motion[:2], 0.0] / self.mounting.height

@@ -130,3 +130,22 @@ def test_calibrate_bad_input_is_one_line_and_exit_2(miscalibrated_drive, tmp_pat
         lines = run.stderr.strip().splitlines()
         assert len(lines) == 1 and expected in lines[0], (args, run.stderr)
         assert 'Traceback' not in run.stderr
+
+
+def test_a_frame_rejected_for_too_few_inliers_teaches_the_attitude_nothing(sprung_car):
+    """Every frame refined and then rejected (min_inliers above any frame's count): the
+    attitude, its learned rate and spread and the self-calibration stay as they started."""
+    renderer, _, images = sprung_car
+    m = renderer.mounting
+    params = config.validate({'camera_x': m.x, 'camera_y': m.y, 'camera_height': m.height,
+                              'camera_roll': m.roll, 'camera_pitch': m.pitch,
+                              'camera_yaw': m.yaw, 'estimate_attitude': True,
+                              'min_inliers': 1000})
+    vo = VisualOdometry.from_params(synth_camera_model(renderer), params)
+    start = (vo.attitude.copy(), vo._rate2.copy(), vo.mounting_estimate().seconds)
+    statuses = {vo.process(image, k / 30.0).status for k, image in enumerate(images[:6])}
+    assert statuses == {'first', 'reinitialized'}, statuses  # refined, then rejected
+    assert np.array_equal(vo.attitude, start[0])
+    assert np.array_equal(vo._rate2, start[1])
+    assert vo.mounting_estimate().seconds == start[2] == 0.0
+    assert vo._height_spread.samples == 0
