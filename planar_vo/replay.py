@@ -262,7 +262,17 @@ def report(result: ReplayResult) -> dict[str, Any]:
         ia, ib = evaluate.associate(stamps, gt_stamps)
         if len(ia) > 1:
             out['accuracy'] = evaluate.metrics(poses[ia], gt_poses[ib])
+    learned = result.mounting
+    if learned is not None and learned.seconds > 0:  # self-calibration ran
+        out['mounting'] = {'seconds': learned.seconds, **{
+            name: {'value': value, 'std': _finite_or_none(learned.std[name])}
+            for name, value in learned.as_params().items()}}
     return out
+
+
+def _finite_or_none(value: float) -> float | None:
+    """JSON has no infinity: a value the drive did not determine is null."""
+    return float(value) if np.isfinite(value) else None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -320,6 +330,16 @@ def _print_summary(summary: dict[str, Any], args: argparse.Namespace) -> None:
         print(f'final drift {acc["final_drift_m"]:.3f} m ({acc["final_drift_percent"]:.3f} %)'
               f'   yaw {acc["final_yaw_error_deg"]:.3f} deg   scale ratio '
               f'{acc["scale_ratio"]:.4f}')
+    learned = summary.get('mounting')
+    if learned:
+        parts = []
+        for name, item in learned.items():
+            if name == 'seconds':
+                continue
+            scale, unit = (1.0, 'm') if name == 'camera_x' else (180.0 / np.pi, 'deg')
+            std = 'not determined' if item['std'] is None else f'+- {item["std"] * scale:.3f}'
+            parts.append(f'{name} {item["value"] * scale:.3f} {unit} ({std})')
+        print(f'self-calibrated mounting over {learned["seconds"]:.1f} s: ' + ', '.join(parts))
     if args.output:
         print(f'odometry written to {args.output}')
     if args.plot:

@@ -5,6 +5,7 @@ planar_vo.camera). Numbers measured when these tests were written are in the REA
 """
 
 import json
+import re
 import subprocess
 
 import numpy as np
@@ -85,10 +86,26 @@ def test_self_calibration_holds_accuracy_from_a_wrong_mounting(miscalibrated_dri
         'ros__parameters:', 'ros__parameters:\n    estimate_attitude: true', 1))
     run = _cli('planar_vo_replay', bag, '--params', tracked, '--json')
     assert run.returncode == 0, run.stderr
-    accuracy = json.loads(run.stdout)['accuracy']
+    summary = json.loads(run.stdout)
+    accuracy = summary['accuracy']
     assert accuracy['path_length_m'] > 40.0
     assert accuracy['t_rel_percent'] <= 0.5, accuracy
     assert accuracy['r_rel_deg_per_100m'] <= 3.0, accuracy
+    # The online estimate at the end of the drive, against the renderer's mounting
+    # (measured: pitch 0.03, roll 0.12, yaw 0.03 deg, camera_x 7 mm off).
+    learned, truth = summary['mounting'], result.mounting
+    assert learned['seconds'] > 9.0, learned
+    for name, true, bound in (('camera_pitch', truth.pitch, np.radians(0.2)),
+                              ('camera_roll', truth.roll, np.radians(0.2)),
+                              ('camera_yaw', truth.yaw, np.radians(0.3)),
+                              ('camera_x', truth.x, 0.05)):
+        assert abs(learned[name]['value'] - true) <= bound, (name, learned[name], true)
+        assert learned[name]['std'] is not None and learned[name]['std'] < bound, learned
+    text = _cli('planar_vo_replay', bag, '--params', tracked)
+    line = [x for x in text.stdout.splitlines() if x.startswith('self-calibrated mounting')]
+    assert len(line) == 1, text.stdout
+    assert re.search(r'camera_pitch [0-9.]+ deg \(\+- [0-9.]+\)', line[0]), line
+    assert re.search(r'camera_x [0-9.]+ m \(\+- [0-9.]+\)', line[0]), line
 
 
 def test_calibrate_recovers_the_mounting_and_the_height(miscalibrated_drive):
