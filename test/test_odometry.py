@@ -276,3 +276,34 @@ def test_constructor_defaults_are_the_parameter_schemas():
     for name in ('max_features', 'quality_level', 'min_distance', 'window', 'levels',
                  'fb_threshold'):
         assert getattr(direct.tracker, name) == getattr(schema.tracker, name), name
+
+
+def test_pose_covariance_holds_correlated_step_errors_and_a_persistent_scale_error():
+    """Against simulation: steps whose errors are exponentially correlated over the model's
+    time constant, and a scale error that persists over the second; the pose covariance
+    accumulated step by step must carry both, at 15 and at 30 Hz."""
+    from planar_vo import odometry
+    rng = np.random.default_rng(7)
+    tau, sigma = odometry._ERROR_CORRELATION_S, 1e-3
+    for rate in (15.0, 30.0):
+        dt, steps = 1.0 / rate, int(10 * rate)
+        rho = np.exp(-dt / tau)
+        errors = np.empty((4000, steps))
+        errors[:, 0] = rng.normal(0.0, sigma, 4000)
+        for k in range(1, steps):
+            errors[:, k] = rho * errors[:, k - 1] + rng.normal(0.0, sigma * np.sqrt(1 - rho ** 2),
+                                                                4000)
+        simulated = errors.sum(axis=1).var()
+        pose, cov = np.zeros(3), np.zeros((3, 3))
+        for _ in range(steps):  # no motion: only the correlated part
+            pose, cov = compose(pose, cov, np.zeros(3), odometry._shared_error_covariance(
+                np.zeros(3), np.diag([sigma ** 2, 0.0, 0.0]), dt))
+        assert 0.9 < cov[0, 0] / simulated < 1.1, (rate, cov[0, 0], simulated)
+        # A scale error s held over 1 s at 5 m/s moves the pose by s * 5 m along the track.
+        speed, scale = 5.0, rng.normal(0.0, odometry._SHARED_SCALE_ERROR, 4000)
+        pose, cov = np.zeros(3), np.zeros((3, 3))
+        for _ in range(int(rate)):
+            pose, cov = compose(pose, cov, np.array([speed * dt, 0.0, 0.0]),
+                                odometry._shared_error_covariance(
+                                    np.array([speed * dt, 0.0, 0.0]), np.zeros((3, 3)), dt))
+        assert 0.9 < cov[0, 0] / (scale * speed).var() < 1.1, (rate, cov[0, 0])
