@@ -473,9 +473,7 @@ class VisualOdometry:
                     circular_refine=self.circular_refine, rng=self._rng)
                 if self.attitude_noise is not None:
                     est = self._refine_attitude(est, rays1[ok], m2[ok], stamp, model)
-            inliers = int(np.count_nonzero(est.inliers))
-            if inliers < self.min_inliers:
-                raise PoseEstimationError(f'{inliers} inliers, fewer than {self.min_inliers}')
+            self._require_inliers(est.inliers)
         except PoseEstimationError as err:
             pose_ms = 1e3 * (time.perf_counter() - t_pose)
             self._failed_frames += 1
@@ -504,6 +502,12 @@ class VisualOdometry:
             hypotheses=est.hypotheses, rms_px=est.rms_px, pose_ms=pose_ms,
             inlier_points=used[est.inliers], outlier_points=used[~est.inliers])
 
+    def _require_inliers(self, inliers: np.ndarray) -> None:
+        """Raise PoseEstimationError when fewer than ``min_inliers`` fit."""
+        count = int(np.count_nonzero(inliers))
+        if count < self.min_inliers:
+            raise PoseEstimationError(f'{count} inliers, fewer than {self.min_inliers}')
+
     def _estimate_with_opencv(self, p1: np.ndarray, m2: np.ndarray,
                               model: TransferModel) -> RansacResult:
         """The plain-OpenCV baseline (4-point homography), for comparison only."""
@@ -530,9 +534,7 @@ class VisualOdometry:
             threshold_px=self.inlier_threshold, arm=self.pivot_arm)
         # A pair too thin to count as estimated must not teach the attitude, its rate, the
         # height's spread or the mounting anything: reject it before any of them changes.
-        count = int(np.count_nonzero(joint.inliers))
-        if count < self.min_inliers:
-            raise PoseEstimationError(f'{count} inliers, fewer than {self.min_inliers}')
+        self._require_inliers(joint.inliers)
         # The height's change between frames absorbs the body's vertical motion, but each
         # pair starts again from the configured height: the mean height is the scale, and a
         # height carried from pair to pair would drift with it (KLT's small bias in the
