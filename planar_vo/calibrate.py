@@ -21,7 +21,14 @@ import yaml
 
 from planar_vo.bag import BagError
 from planar_vo.calibration import MountingEstimate
-from planar_vo.config import NODE_NAME, ConfigError, load_params_file, params_section, validate
+from planar_vo.config import (
+    NODE_NAME,
+    ConfigError,
+    load_params_file,
+    params_section,
+    read_params_yaml,
+    validate,
+)
 from planar_vo.replay import ReplayError, replay
 
 __all__ = ['main', 'calibrate']
@@ -80,7 +87,7 @@ def _determined(estimate: MountingEstimate,
 
 def _raw_section(path: Path) -> dict[str, Any]:
     """IN's own parameters, as written (validated by :func:`load_params_file` first)."""
-    return dict(params_section(yaml.safe_load(path.read_text())) or {})
+    return dict(params_section(read_params_yaml(path)) or {})
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -176,17 +176,43 @@ def params_section(data: Any, node_name: str = NODE_NAME) -> Any:
     return None
 
 
-def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, Any]:
-    """Read a ROS 2 params YAML (``<node>: ros__parameters: {...}``) and validate it."""
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """A YAML loader that refuses a key given twice in one mapping.
+
+    PyYAML keeps the last of them without a word, so a parameter set near the top of a long
+    file and again further down silently takes the second value.
+    """
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            line = key_node.start_mark.line + 1
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f'"{key}" is given twice (lines {seen[key]} and {line}); '
+                    'keep one', key_node.start_mark)
+            seen[key] = line
+        return super().construct_mapping(node, deep=deep)
+
+
+def read_params_yaml(path: str | Path) -> Any:
+    """The YAML document of a params file, or a ConfigError saying what is wrong with it."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        return yaml.load(path.read_text(), Loader=_UniqueKeyLoader)
     except OSError as err:
         raise ConfigError(f'cannot read params file {path}: {err.strerror}') from err
     except yaml.YAMLError as err:
         mark = getattr(err, 'problem_mark', None)
         where = f' (line {mark.line + 1}: {getattr(err, "problem", "")})' if mark else ''
         raise ConfigError(f'params file {path} is not valid YAML{where}') from err
+
+
+def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, Any]:
+    """Read a ROS 2 params YAML (``<node>: ros__parameters: {...}``) and validate it."""
+    path = Path(path)
+    data = read_params_yaml(path)
     if data is None:
         return defaults()
     section = params_section(data, node_name)

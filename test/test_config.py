@@ -48,6 +48,11 @@ def test_params_file_round_trip_and_errors(tmp_path):
     bad.write_text('planar_vo: [unclosed\n')
     with pytest.raises(config.ConfigError, match='not valid YAML'):
         config.load_params_file(bad)
+    twice = tmp_path / 'twice.yaml'
+    twice.write_text('planar_vo:\n  ros__parameters:\n    camera_x: 0.5\n    camera_y: 0.0\n'
+                     '    camera_x: 0.7\n')
+    with pytest.raises(config.ConfigError, match=r'"camera_x" is given twice \(lines 3 and 5\)'):
+        config.load_params_file(twice)
     other = tmp_path / 'other.yaml'
     other.write_text('some_node:\n  ros__parameters:\n    x: 1\n')
     with pytest.raises(config.ConfigError, match='no "planar_vo: ros__parameters:"'):
