@@ -13,7 +13,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # The venv's console scripts (planar_vo_node, started by demo and bench) are found on PATH.
 export PATH := $(abspath $(VENV))/bin:$(PATH)
 
-.PHONY: venv test lint pytest demo bench soak paper clean
+.PHONY: venv test lint pytest demo bench soak paper mountings clean
 
 venv: $(STAMP)
 
@@ -55,6 +55,12 @@ soak: $(STAMP)
 paper: $(STAMP)
 	mkdir -p out
 	$(VENV)/bin/planar_vo_paper_experiment --plot out/paper_fig5.png
+
+# The sprung-body tables of the README: car and rough bodies against a rigid mount and
+# against OpenCV's homography on the same tracks (four 46 m drives each, about 10 minutes).
+mountings: $(STAMP)
+	$(VENV)/bin/planar_vo_mounting_experiment --scenario car
+	$(VENV)/bin/planar_vo_mounting_experiment --scenario rough
 
 clean:
 	rm -rf $(VENV) build install log out *.egg-info

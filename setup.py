@@ -52,6 +52,7 @@ setup(
             'planar_vo_soak = planar_vo.soak:main',
             'planar_vo_synth = planar_vo.synth:main',
             'planar_vo_calibrate = planar_vo.calibrate:main',
+            'planar_vo_mounting_experiment = planar_vo.mounting_experiment:main',
         ],
     },
 )

@@ -16,7 +16,7 @@ from pathlib import Path
 
 EXECUTABLES = ('planar_vo_node', 'planar_vo_replay', 'planar_vo_synth', 'planar_vo_demo',
                'planar_vo_bench', 'planar_vo_paper_experiment', 'planar_vo_soak',
-               'planar_vo_calibrate')
+               'planar_vo_calibrate', 'planar_vo_mounting_experiment')
 
 
 def _clean_path() -> str:
