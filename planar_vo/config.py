@@ -14,7 +14,7 @@ from typing import Any
 import yaml
 
 __all__ = ['Param', 'SCHEMA', 'ConfigError', 'defaults', 'validate', 'load_params_file',
-           'params_section', 'MOUNTING_PARAMS']
+           'read_params_yaml', 'params_section', 'MOUNTING_PARAMS']
 
 NODE_NAME = 'planar_vo'
 
@@ -188,6 +188,10 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         for key_node, _ in node.value:
             key = self.construct_object(key_node, deep=deep)
             line = key_node.start_mark.line + 1
+            try:
+                hash(key)
+            except TypeError:  # SafeLoader says what is wrong with it
+                continue
             if key in seen:
                 raise yaml.constructor.ConstructorError(
                     None, None, f'"{key}" is given twice (lines {seen[key]} and {line}); '
