@@ -17,7 +17,7 @@ import numpy as np
 
 from planar_vo.attitude import (
     AttitudePrior,
-    HeightSpread,
+    HeightWalk,
     refine_with_attitude,
     tilted_mounting,
 )
@@ -251,7 +251,7 @@ class VisualOdometry:
         self.attitude_covariance = noise.offset_cov if noise else np.zeros((3, 3))
         self._rate2 = noise.rates ** 2 if noise else np.zeros(3)
         self._rate_samples = 0
-        self._height_spread = HeightSpread(variance=noise.offset_cov[2, 2] if noise else 0.0)
+        self._height = HeightWalk(variance=noise.offset_cov[2, 2] if noise else 0.0)
 
     def _attitude_offset(self) -> np.ndarray:
         if not self.self_calibrate:
@@ -536,25 +536,23 @@ class VisualOdometry:
             est.motion, v1, m2, self.mounting, prior, focal_px=model.focal_px,
             threshold_px=self.inlier_threshold, arm=self.pivot_arm)
         # A pair too thin to count as estimated must not teach the attitude, its rate, the
-        # height's spread or the mounting anything: reject it before any of them changes.
+        # height or the mounting anything: reject it before any of them changes.
         self._require_inliers(joint.inliers)
-        # The height's change between frames absorbs the body's vertical motion, but each
-        # pair starts again from the configured height: the mean height is the scale, and a
-        # height carried from pair to pair would drift with it (KLT's small bias in the
-        # change).
+        # The next pair starts from the height the changes summed to (the bounce about the
+        # mean, which is the configured height and the scale), held there: how far that
+        # walk may be from the truth is the step's scale uncertainty, as the step is
+        # proportional to the first frame's height.
+        # Replaced, not changed in place: process() restores attributes when a frame fails.
+        self._height = dataclasses.replace(self._height)
+        scale_variance = min(self._height.error_variance, noise.offset_cov[2, 2])
+        self._height.add(joint.change[2], joint.change_cov[2, 2], dt, self._rate2[2] * dt * dt)
         attitude, covariance = joint.attitude.copy(), joint.attitude_covariance.copy()
-        attitude[2] = 0.0
+        attitude[2] = self._height.walk
         covariance[2, :] = covariance[:, 2] = 0.0
         covariance[2, 2] = _FIXED_HEIGHT ** 2
         self.attitude, self.attitude_covariance = attitude, covariance
-        # How far the true height strays from the mean (the bounce) is the step's scale
-        # uncertainty: the step is proportional to the first frame's height.
-        # Replaced, not changed in place: process() restores attributes when a frame fails.
-        self._height_spread = dataclasses.replace(self._height_spread)
-        spread = min(self._height_spread.add(joint.change[2], joint.change_cov[2, 2], dt),
-                     noise.offset_cov[2, 2])
         per_metre = np.r_[joint.motion[:2], 0.0] / self.mounting.height
-        motion_cov = joint.covariance + spread * np.outer(per_metre, per_metre)
+        motion_cov = joint.covariance + scale_variance * np.outer(per_metre, per_metre)
         self._learn_attitude_rate(joint.change, joint.change_cov, dt)
         if self.self_calibrate:
             self.calibrator.add(joint.motion, joint.covariance, joint.attitude, dt)

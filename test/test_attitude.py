@@ -113,20 +113,34 @@ def test_the_prior_holds_what_the_data_cannot_see():
     assert np.all(np.sqrt(np.diag(joint.attitude_covariance)[:2]) > np.radians(0.005))
 
 
-def test_height_spread_learns_the_bounce_not_the_noise_or_the_bias():
+def test_height_walk_follows_the_bounce_not_the_noise_or_the_bias():
     """Changes of a 2 Hz, 10 mm bounce (std 7.1 mm) measured with 0.3 mm of noise and a
-    -0.1 mm bias per frame: the spread learned is the bounce's; without a bounce it is
-    near zero, though the noise and the bias summed over a second would be 2-3 mm."""
-    from planar_vo.attitude import HeightSpread
+    -0.1 mm bias per frame (3 mm a second if summed): the walk follows the true height to
+    1.5 mm rms, its variance learned is the bounce's, and the error it declares covers the
+    one it makes. Without a bounce all of them are near zero, and told the body does not
+    move (a rigid mount) it sums nothing."""
+    from planar_vo.attitude import HeightWalk
     rng = np.random.default_rng(3)
     dt, t = 1 / 30, np.arange(0, 20, 1 / 30)
     for amplitude, low, high in ((0.010, 0.0063, 0.0078), (0.0, 0.0, 0.001)):
         height = amplitude * np.sin(2 * np.pi * 2.0 * t)
-        spread = HeightSpread(variance=0.03 ** 2)
-        learned = [spread.add(change, 0.0003 ** 2, dt) for change in
-                   np.diff(height) - 0.0001 + rng.normal(0, 0.0003, len(t) - 1)]
+        walk = HeightWalk(variance=0.03 ** 2)
+        assert np.sqrt(walk.error_variance) > 0.02  # starts from the configured spread
+        errors, declared, learned = [], [], []
+        for k, change in enumerate(np.diff(height) - 0.0001 + rng.normal(0, 0.0003, len(t) - 1)):
+            walk.add(change, 0.0003 ** 2, dt)
+            errors.append(walk.walk - height[k + 1])
+            declared.append(walk.error_variance)
+            learned.append(max(walk.variance, 0.0))
+        rms = np.sqrt(np.mean(np.square(errors[-300:])))
+        assert rms < 0.0015, rms
         assert low <= np.sqrt(np.mean(learned[-300:])) <= high, np.sqrt(np.mean(learned[-300:]))
-        assert np.sqrt(learned[0]) > 0.02  # starts from the configured spread
+        assert rms ** 2 <= np.mean(declared[-300:]) <= (0.6 * amplitude) ** 2 + 4 * rms ** 2
+    # A rigid mount (the body's own changes near zero): the noise and the bias are not summed.
+    still = HeightWalk(variance=0.03 ** 2)
+    for change in -0.0001 + rng.normal(0, 0.0003, 300):
+        still.add(change, 0.0003 ** 2, dt, true_variance=1e-12)
+    assert abs(still.walk) < 1e-5, still.walk
 
 
 def test_self_calibration_reports_the_uncertainty_of_what_it_applied():

@@ -182,4 +182,4 @@ def test_a_frame_rejected_for_too_few_inliers_teaches_the_attitude_nothing(sprun
     assert np.array_equal(vo.attitude, start[0])
     assert np.array_equal(vo._rate2, start[1])
     assert vo.mounting_estimate().seconds == start[2] == 0.0
-    assert vo._height_spread.samples == 0
+    assert vo._height.samples == 0 and vo._height.walk == 0
