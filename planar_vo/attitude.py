@@ -10,7 +10,8 @@ level: the odometry reports its planar motion, not the body's.
 Between two frames the ground induces the general homography ``R + t n^T / d`` (DESIGN.md §6),
 so the tilt of both frames is observable from the transfer error: the rotation between them
 from any frame pair, the ground normal from the translation. The absolute height is not
-(it is the scale): ``dh`` is held near 0 by its prior and only its change is measured.
+(it is the scale): only its change is measured, and :class:`HeightWalk` sums the changes
+about the configured height (the mean) into the next pair's first-frame ``dh``.
 
 :func:`refine_with_attitude` is a two-frame sliding window: Gauss-Newton on the transfer
 error over (x, y, yaw, a_1, a_2) with three priors: ``a_1`` from the previous frame's
