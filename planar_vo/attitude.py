@@ -292,9 +292,9 @@ class HeightWalk:
     frame's bounce as scale error (on ``rough``, 13 mm on 1.1 m: t_rel 0.094 % over six
     drives, 0.075 % with the walk). The walk's variance, less what the measurement noise
     gives it, is the bounce's (learned over ``variance_memory_s`` from the configured
-    ``variance``); the walk's error
-    is the noise's part, the bounce's slow part that the leak misses, and what is left of the
-    first frame's (it starts at the configured height: the bounce's whole spread).
+    ``variance``); the walk's error is the noise's part, the bounce's slow part that the leak
+    misses, and what is left of the first frame's (it starts at the configured height: the
+    bounce's whole spread).
     """
 
     leak_s: float = 0.5
