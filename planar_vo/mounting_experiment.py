@@ -37,8 +37,9 @@ VARIANTS = {
     'sprung, + self-calibration': ('sprung', {'estimate_attitude': True}),
     'sprung, OpenCV homography': ('sprung', {'ransac_method': 'opencv_homography'}),
 }
-OURS, RIGID, OPENCV = 'sprung, attitude + pivot', 'rigid mount, rigid model', \
-    'sprung, OpenCV homography'
+RIGID = 'rigid mount, rigid model'
+OURS = 'sprung, attitude + pivot'
+OPENCV = 'sprung, OpenCV homography'
 
 
 def _camera_model(renderer) -> CameraModel:
@@ -107,15 +108,11 @@ def _print_table(scenario: str, frames: int, drives: dict[int, dict[str, dict]],
           f'OpenCV / ours: {summary["opencv_over_ours"]:.2f}x (bar: 3x)')
 
 
-class _UsageError(Exception):
-    pass
-
-
 class _Parser(argparse.ArgumentParser):
     """argparse that reports a usage error in one line on stderr (exit 2)."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        raise _UsageError(message)
+        self.exit(2, f'{PROG}: error: {message}\n')
 
 
 def _seeds(text: str) -> list[int]:
@@ -157,14 +154,8 @@ def _build_parser() -> _Parser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Command line entry point; returns the exit code (2 on bad arguments)."""
-    try:
-        args = _build_parser().parse_args(argv)
-    except _UsageError as exc:
-        print(f'{PROG}: error: {exc}', file=sys.stderr)
-        return 2
-    except SystemExit as exc:  # --help
-        return int(exc.code or 0)
+    """Command line entry point; returns the exit code (bad arguments exit 2)."""
+    args = _build_parser().parse_args(argv)
     progress = Progress(len(args.seeds) * (2 + len(VARIANTS)) * args.frames, 'drives',
                         enabled=not args.json and sys.stderr.isatty())
     done = 0
