@@ -88,11 +88,12 @@ def synth_camera_model(renderer):
 
 def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, camera=None,
                  suspension=None, mounting=None, configured=None, exposure=0.0, rate=30.0,
-                 twist=False):
+                 twist=False, supersample=1):
     """Render a synthetic scenario and run the odometry core on it (no bag, no ROS).
 
     The images are rendered with ``mounting`` (default: the scenario's) on ``suspension``
-    (default: the scenario's body) with auto-exposure changes within +-``exposure``. The
+    (default: the scenario's body) with auto-exposure changes within +-``exposure``, with
+    ``supersample`` x ``supersample`` rays averaged per pixel. The
     odometry is configured with ``configured`` (a mounting, or a ``synth.MountingError`` off
     the true one; default: the true one); ``overrides`` win. ``corrupt(k, image, stamp)``
     may replace frame k (image, stamp) to inject bad input. Frames are ``rate`` Hz apart;
@@ -105,7 +106,7 @@ def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, came
 
     renderer, traj = synth.render_scenario(scenario, frames, seed, rate=rate, camera=camera,
                                            mounting=mounting, suspension=suspension,
-                                           exposure=exposure)
+                                           exposure=exposure, supersample=supersample)
     if configured is None or isinstance(configured, synth.MountingError):
         configured = (configured or synth.MountingError()).apply(renderer.mounting)
     mount = configured

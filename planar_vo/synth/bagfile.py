@@ -107,12 +107,14 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                  jpeg_quality: int = 90, noise_sigma: float = 1.5, max_range: float = 60.0,
                  obstacles: bool = True, storage_compression: bool = True,
                  params_out=None, configured_error: MountingError | None = None,
-                 exposure: float = 0.0, progress: bool = False) -> SynthResult:
+                 exposure: float = 0.0, supersample: int = 1,
+                 progress: bool = False) -> SynthResult:
     """Render a scenario and write the rosbag2 bag (MCAP, zstd chunks) at ``out_path``.
 
-    ``mounting``, ``suspension`` and ``exposure`` as in :func:`render_scenario`. The images
-    are rendered with ``mounting``; ``params_out`` gets it plus ``configured_error`` (the
-    mounting a user would have configured, to test calibration).
+    ``mounting``, ``suspension``, ``exposure`` and ``supersample`` as in
+    :func:`render_scenario`. The images are rendered with ``mounting``; ``params_out`` gets
+    it plus ``configured_error`` (the mounting a user would have configured, to test
+    calibration).
     """
     from planar_vo.bag import BagWriter, typestore
 
@@ -121,7 +123,8 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
     renderer, traj = render_scenario(scenario, frames, seed, rate=rate, camera=camera,
                                      mounting=mounting, suspension=suspension,
                                      noise_sigma=noise_sigma, max_range=max_range,
-                                     obstacles=obstacles, exposure=exposure)
+                                     obstacles=obstacles, exposure=exposure,
+                                     supersample=supersample)
     mounting = renderer.mounting
     configured = (configured_error or MountingError()).apply(mounting)
     suspension = SCENARIOS[scenario].suspension if suspension is None else suspension

@@ -66,12 +66,14 @@ SCENARIOS = {
 def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0, *,
                     rate: float = 30.0, camera: SynthCamera | None = None, mounting=None,
                     suspension: Suspension | None = None, noise_sigma: float = 1.5,
-                    max_range: float = 60.0, obstacles: bool = True, exposure: float = 0.0):
+                    max_range: float = 60.0, obstacles: bool = True, exposure: float = 0.0,
+                    supersample: int = 1):
     """Build the scene; return ``(renderer, trajectory)``.
 
     ``mounting`` (a :class:`CameraMount` or anything with its six numbers) and ``suspension``
     default to the scenario's. ``exposure`` is the auto-exposure range (0.2: gain within
     +-20 %, see :func:`exposure_gains`; ``renderer.exposure`` holds the gain of every frame).
+    ``supersample``: rays per pixel side, averaged (see :class:`Renderer`).
     ``renderer.render_frame(traj, k)`` is frame k of the bag; ``traj.camera`` holds the true
     camera pose of every frame.
     """
@@ -87,5 +89,6 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
     renderer = Renderer(camera, mounting, make_ground_texture(seed), boxes,
                         max_range=max_range, noise_sigma=noise_sigma, seed=seed,
                         max_tilt=suspension.pitch + suspension.roll + math.radians(1.0),
-                        exposure=exposure_gains(traj.t, exposure, seed) if exposure else None)
+                        exposure=exposure_gains(traj.t, exposure, seed) if exposure else None,
+                        supersample=supersample)
     return renderer, traj
