@@ -91,7 +91,9 @@ SCHEMA: tuple[Param, ...] = (
     Param('rectified_input', False, 'The images are rectified (e.g. image_proc image_rect): '
           'use the CameraInfo projection P and no distortion.', read_only=True),
     # Tracking.
-    Param('max_features', 400, 'Features kept tracked; replenished on a grid.', 20, 5000),
+    Param('max_features', 400, 'Features kept tracked; replenished on a grid. 700 with '
+          'estimate_attitude on a sprung body (the tilt is measured from the tracks).',
+          20, 5000),
     Param('quality_level', 0.005, 'Shi-Tomasi quality relative to the best corner.',
           1e-5, 0.5),
     Param('min_distance', 8.0, 'Minimum distance between features, px.', 1.0, 100.0),

@@ -7,7 +7,9 @@ and on a rigid one along the same path, and run through the odometry core:
 - the sprung body with the attitude estimated and the body's pivot configured, the mounting
   kept; the same with self-calibration; OpenCV's per-pair homography on the same tracks.
 
-Every run is configured with the true mounting; the truth is the renderer's path. Prints
+Every run is configured with the true mounting and tracks ``TRACKS`` features (what the
+README advises for a sprung body; the same tracks for every variant, so OpenCV's homography and
+the rigid mount get them too); the truth is the renderer's path. Prints
 each drive's t_rel / r_rel and the means, with the two ratios the sprung-body bars are set
 in: sprung / rigid mount, and OpenCV / ours. No ROS.
 """
@@ -30,6 +32,7 @@ __all__ = ['VARIANTS', 'run_drive', 'main']
 
 PROG = 'planar_vo_mounting_experiment'
 SPRUNG = ('car', 'rough')
+TRACKS = 700  # max_features of every variant
 # name -> (body rendered, parameters on top of the true mounting)
 VARIANTS = {
     'rigid mount, rigid model': ('rigid', {}),
@@ -69,7 +72,7 @@ def run_drive(scenario: str, frames: int, seed: int, rate: float = 30.0,
         mounting = {'camera_x': m.x, 'camera_y': m.y, 'camera_height': m.height,
                     'camera_roll': m.roll, 'camera_pitch': m.pitch, 'camera_yaw': m.yaw,
                     'body_pivot_below_camera': m.height - body.pivot_z,
-                    'body_pivot_behind_camera': m.x - body.pivot_x}
+                    'body_pivot_behind_camera': m.x - body.pivot_x, 'max_features': TRACKS}
         for name, (rendered, overrides) in VARIANTS.items():
             if rendered != which:
                 continue

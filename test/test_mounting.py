@@ -62,6 +62,30 @@ def test_sprung_body_attitude_tracking_beats_a_rigid_model(sprung_car):
     assert pivoted['t_rel_percent'] < in_place['t_rel_percent'], (pivoted, in_place)
 
 
+def test_sprung_body_is_within_2x_of_a_rigid_mount_and_beats_opencv(sprung_car):
+    """The sprung `car` drive configured as the README advises (attitude, pivot, 700 tracks)
+    against the rigid model on a rigid mount along the same path, and OpenCV's homography on
+    the same tracks. Measured (200 frames, 31 m): rigid mount 0.034 %, sprung 0.047 % (1.4x;
+    0.068 % with 400 tracks), OpenCV 0.109 % (2.3x ours: the issue's 3x is not reached)."""
+    renderer, traj, images = sprung_car
+    body = synth.SCENARIOS['car'].suspension
+    m = renderer.mounting
+    rigid_renderer, rigid_traj = synth.render_scenario('car', 200, 0, suspension=synth.RIGID)
+    np.testing.assert_allclose(rigid_traj.x, traj.x)  # the same path
+    rigid_images = [rigid_renderer.render_frame(rigid_traj, k) for k in range(200)]
+    tracks = {'max_features': 700}
+    rigid = _metrics(_run(rigid_renderer, rigid_images, m, tracks), rigid_traj)
+    ours = _metrics(_run(renderer, images, m, {
+        **tracks, 'estimate_attitude': True, 'self_calibrate': False,
+        'body_pivot_below_camera': m.height - body.pivot_z,
+        'body_pivot_behind_camera': m.x - body.pivot_x}), traj)
+    opencv = _metrics(_run(renderer, images, m,
+                           {**tracks, 'ransac_method': 'opencv_homography'}), traj)
+    assert ours['t_rel_percent'] < 2.0 * rigid['t_rel_percent'], (ours, rigid)
+    assert ours['r_rel_deg_per_100m'] < 2.0, ours
+    assert opencv['t_rel_percent'] > 1.8 * ours['t_rel_percent'], (opencv, ours)
+
+
 def test_attitude_on_a_rigid_mount_costs_little():
     """`straight`, 150 frames, rigid mount, exactly configured: estimating the attitude (the
     mounting kept) as accurate as the rigid model. Measured: t_rel 0.024 against 0.032 %,
