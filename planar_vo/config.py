@@ -136,7 +136,8 @@ SCHEMA: tuple[Param, ...] = (
     Param('body_pivot_behind_camera', 0.0, 'With estimate_attitude: how far behind the camera '
           'the body tilts about (negative: ahead of it), m.', -20.0, 20.0),
     Param('estimate_height', True, "Also estimate the camera height's change between frames "
-          '(body bounce); each frame pair starts from camera_height, which stays the scale.'),
+          '(body bounce); each frame pair starts from the height those changes summed to, '
+          'about camera_height, which stays the mean and the scale.'),
     Param('bounce_sigma', 0.03, 'With estimate_height: how far the camera height moves from '
           'its mean, m (1 sigma).', 1e-5, 1.0),
     Param('bounce_rate', 0.3, 'With estimate_height: how fast the camera height moves at '
