@@ -27,6 +27,9 @@ def test_reports_the_reference_pipeline_ratios_and_the_runs_accuracy(capsys):
     assert ratios['attitude_over_whole_frame'] == pytest.approx(
         median['whole_frame_with_attitude'] / median['whole_frame_with_decode'])
     assert abs(out['accuracy']['planar_vo_attitude']['scale_ratio'] - 1) < 0.02
+    # And with the tracks advised for a sprung body.
+    assert ratios['attitude_700_tracks_over_whole_frame'] == pytest.approx(
+        median['whole_frame_with_attitude_700_tracks'] / median['whole_frame_with_decode'])
     # Both pipelines hold about the same number of tracks: the ratio compares like with like.
     assert 300 <= out['tracks_per_frame']['opencv_reference'] <= 400
     assert 300 <= out['tracks_per_frame']['planar_vo'] <= 400
