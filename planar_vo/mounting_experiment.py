@@ -131,21 +131,22 @@ def _seeds(text: str) -> list[int]:
     return seeds
 
 
-def _frames(text: str) -> int:
+def _integer(text: str) -> int:
     try:
-        value = int(text)
+        return int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
+
+
+def _frames(text: str) -> int:
+    value = _integer(text)
     if value < 30:
         raise argparse.ArgumentTypeError(f'must be at least 30 (t_rel needs a path), got {value}')
     return value
 
 
 def _supersample(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
+    value = _integer(text)
     if not 1 <= value <= 4:
         raise argparse.ArgumentTypeError(f'must be 1 to 4, got {value}')
     return value

@@ -117,7 +117,9 @@ class Renderer:
         uu, vv = np.meshgrid((np.arange(sensor.width) - sensor.cx) / sensor.width,
                              (np.arange(sensor.height) - sensor.cy) / sensor.height)
         self.vignette = (1.0 - 0.35 * (uu * uu + vv * vv)).ravel().astype(np.float32)
-        self.ground_mask = ground.reshape(h, w)[::self.supersample, ::self.supersample]
+        # A pixel is ground when all its rays are.
+        self.ground_mask = ground.reshape(sensor.height, self.supersample, sensor.width,
+                                          self.supersample).all(axis=(1, 3))
         # Pixels a tilted camera may see the ground through, sorted by their nominal level.
         unit_rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
         self._unit_rays = np.ascontiguousarray(unit_rays.T, np.float32)  # (3, N)
