@@ -89,6 +89,19 @@ class OpenCVReference:
         self._previous: np.ndarray | None = None
         self.points = np.zeros((0, 1, 2), np.float32)
 
+    @classmethod
+    def from_params(cls, camera: CameraModel, mounting: Mounting,
+                    params: dict) -> OpenCVReference:
+        """The reference with planar_vo's own settings (validated node parameters).
+
+        The same feature budget, detector, round-trip check and inlier threshold, so only
+        the method differs.
+        """
+        return cls(camera, mounting, max_features=params['max_features'],
+                   quality_level=params['quality_level'], min_distance=params['min_distance'],
+                   fb_threshold=params['fb_threshold'],
+                   inlier_threshold_px=params['inlier_threshold'])
+
     def process(self, gray: np.ndarray) -> np.ndarray | None:
         """Motion ``[x, y, yaw]`` of base_link since the previous image, None if none."""
         motion = None

@@ -116,11 +116,7 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
         sprung = VisualOdometry.from_params(camera, {**params, 'estimate_attitude': True,
                                                      'max_features': SPRUNG_BODY_TRACKS})
         in_tracker = _time_calls(vo.tracker, ('track', 'replenish'))
-        reference = OpenCVReference(
-            camera, vo.mounting, max_features=params['max_features'],
-            quality_level=params['quality_level'], min_distance=params['min_distance'],
-            fb_threshold=params['fb_threshold'],
-            inlier_threshold_px=params['inlier_threshold'])
+        reference = OpenCVReference.from_params(camera, vo.mounting, params)
         reference_pose = np.zeros(3)
         for i, message in enumerate(images):
             in_tracker[0] = 0.0

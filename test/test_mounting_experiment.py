@@ -6,7 +6,7 @@ import subprocess
 import numpy as np
 
 from planar_vo import resources
-from planar_vo.mounting_experiment import OPENCV, OURS, RIGID, VARIANTS
+from planar_vo.mounting_experiment import OPENCV, OURS, PLAIN_OPENCV, RIGID, VARIANTS
 
 
 def _run(*args):
@@ -32,6 +32,8 @@ def test_experiment_reports_every_variant_and_the_ratios():
                       drive[OURS]['t_rel_percent'] / drive[RIGID]['t_rel_percent'])
     assert np.isclose(summary['opencv_over_ours'],
                       drive[OPENCV]['t_rel_percent'] / drive[OURS]['t_rel_percent'])
+    assert np.isclose(summary['plain_opencv_over_ours'],
+                      drive[PLAIN_OPENCV]['t_rel_percent'] / drive[OURS]['t_rel_percent'])
 
 
 def test_experiment_bad_arguments_are_one_line_and_exit_2():
