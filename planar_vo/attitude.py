@@ -184,6 +184,7 @@ def refine_with_attitude(
     *,
     focal_px: float,
     threshold_px: float,
+    start_threshold_px: float | None = None,
     iterations: int = 10,
     arm: np.ndarray | None = None,
 ) -> JointResult:
@@ -191,13 +192,18 @@ def refine_with_attitude(
 
     Inliers are chosen again at every step until the set settles, as in
     :func:`planar_vo.ransac.refine_motion`; the pixel noise that weighs the data against the
-    priors is estimated from the inliers' residuals at every step too.
+    priors is estimated from the inliers' residuals at every step too. The threshold starts
+    at ``start_threshold_px`` and halves every step down to ``threshold_px``: a tilt that
+    changed by more than the pixel noise between the frames (a jolt) moves every point off
+    the start, which sees both frames at frame 1's attitude, and a tight threshold would
+    then keep too few points to find it.
 
     Args:
         motion: (3,) starting motion (the RANSAC + 3-DoF estimate).
         v1: (N, 3) frame-1 rays in base_link through the configured mounting.
         m2: (N, 2) observed frame-2 normalized coordinates.
         threshold_px: inlier threshold on the transfer error.
+        start_threshold_px: the first step's threshold (default ``threshold_px``).
         arm: (3,) camera position minus the body's tilt pivot (default: tilts in place).
 
     Raises:
@@ -210,9 +216,13 @@ def refine_with_attitude(
     info_step = np.linalg.inv(prior.step_cov)
     info_offset = np.linalg.inv(prior.offset_cov)
     floor2 = (_MIN_SIGMA_PX / focal_px) ** 2
-    threshold2 = (threshold_px / focal_px) ** 2
+    wide = max(threshold_px, start_threshold_px or threshold_px)
+    # The halvings down to threshold_px come on top of the iterations.
+    iterations += int(np.ceil(np.log2(wide / threshold_px)))
     inliers = np.zeros(v1.shape[0], bool)
     for i in range(iterations + 1):
+        threshold = max(threshold_px, wide * 0.5 ** i)
+        threshold2 = (threshold / focal_px) ** 2
         r, J, front = transfer_residuals(params, v1_t, m2_t, mounting, arm)
         squared = r[0] * r[0] + r[1] * r[1]
         selected = front & (squared < threshold2)
@@ -243,7 +253,7 @@ def refine_with_attitude(
             break
         step = -np.linalg.solve(H, g)
         params = params + step
-        if np.max(np.abs(step)) < 1e-6 and not changed:
+        if np.max(np.abs(step)) < 1e-6 and not changed and threshold == threshold_px:
             break
     covariance = np.linalg.inv(H)
     rms = focal_px * float(np.sqrt(squared[inliers].mean()))

@@ -11,7 +11,7 @@ from planar_vo.attitude import (
     transfer_residuals,
 )
 from planar_vo.camera import Mounting, rays_through
-from planar_vo.ransac import TransferModel
+from planar_vo.ransac import PoseEstimationError, TransferModel
 from test.conftest import move_points, observe
 
 MOUNTING = Mounting(x=1.2, y=0.1, height=1.25, pitch=np.radians(8.0), roll=0.01, yaw=0.02)
@@ -95,6 +95,39 @@ def test_recovers_known_tilts_with_a_consistent_covariance():
     assert np.all(np.abs(errors.mean(axis=0)) < 4 * spread / np.sqrt(len(errors)))
     assert np.degrees(spread[3:]).max() < 0.2  # a tenth of a degree from one frame pair
     assert 2.0 < np.mean(nees) < 4.5  # 3 is ideal
+
+
+def test_a_jolt_between_frames_is_found_from_a_wide_start_threshold():
+    """Frame 2 pitched 0.35 deg more than frame 1 (a rough road's jolt at 20 Hz), 0.15 px
+    noise, a fifth of the points outliers: the refinement starts at frame 1's attitude,
+    where the ground points are 2-3.5 px off. Coming down from 8 px it finds the jolt and its
+    inliers, no outlier; starting at the 0.5 px inlier threshold it keeps almost none."""
+    rng = np.random.default_rng(4)
+    f, n = 460.0, 300
+    tilt_1, tilt_2 = np.zeros(3), np.array([0.0, np.radians(0.35), 0.0])
+    motion = np.array([0.3, 0.002, 0.01])
+    points = np.c_[rng.uniform(3, 15, n), rng.uniform(-4, 4, n)]
+    frame_1, frame_2 = tilted_mounting(MOUNTING, tilt_1), tilted_mounting(MOUNTING, tilt_2)
+    m1 = observe(frame_1, points) + rng.normal(0, 0.15 / f, (n, 2))
+    m2 = observe(frame_2, move_points(points, motion)) + rng.normal(0, 0.15 / f, (n, 2))
+    outlier = rng.random(n) < 0.2
+    m2[outlier] += rng.uniform(-30, 30, (int(outlier.sum()), 2)) / f
+    v1 = rays_through(m1) @ MOUNTING.base_from_optical.T
+    off = np.linalg.norm(observe(frame_1, move_points(points, motion)) - m2, axis=1) * f
+    assert np.median(off[~outlier]) > 2.0  # what the start sees
+    rate = np.diag([np.radians(0.15) ** 2] * 2 + [1e-12])  # the learned step, one sigma
+    prior = AttitudePrior(tilt_1, rate / 100, rate, np.zeros(3), rate * 100)
+    joint = refine_with_attitude(motion, v1, m2, MOUNTING, prior, focal_px=f,
+                                 threshold_px=0.5, start_threshold_px=8.0)
+    assert abs(np.degrees(joint.attitude[1] - tilt_2[1])) < 0.03  # of the 0.35
+    assert np.count_nonzero(joint.inliers & ~outlier) > 0.85 * np.count_nonzero(~outlier)
+    assert not np.any(joint.inliers & outlier)
+    try:
+        narrow = refine_with_attitude(motion, v1, m2, MOUNTING, prior, focal_px=f,
+                                      threshold_px=0.5).inliers
+    except PoseEstimationError:
+        narrow = np.zeros(n, bool)
+    assert np.count_nonzero(narrow) < 0.2 * np.count_nonzero(~outlier)
 
 
 def test_the_prior_holds_what_the_data_cannot_see():
