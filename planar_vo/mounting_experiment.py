@@ -126,12 +126,12 @@ def _summary(drives: dict[int, dict[str, dict]]) -> dict[str, float]:
             'plain_opencv_over_ours': mean[PLAIN_OPENCV] / mean[OURS]}
 
 
-def _print_table(scenario: str, frames: int, supersample: int,
+def _print_table(scenario: str, frames: int, rate: float, supersample: int,
                  drives: dict[int, dict[str, dict]], summary: dict) -> None:
     seeds = list(drives)
     rays = f', {supersample}x{supersample} rays a pixel' if supersample > 1 else ''
-    print(f'{PROG}: `{scenario}`, {frames} frames{rays}, seeds {", ".join(map(str, seeds))}; '
-          't_rel % / r_rel deg/100 m (renderer\'s truth)')
+    print(f'{PROG}: `{scenario}`, {frames} frames at {rate:g} Hz{rays}, seeds '
+          f'{", ".join(map(str, seeds))}; t_rel % / r_rel deg/100 m (renderer\'s truth)')
     width = max(map(len, VARIANTS))
     print(' ' * width + ''.join(f' | seed {s:<9d}' for s in seeds) + ' | mean t_rel')
     for name in VARIANTS:
@@ -175,6 +175,16 @@ def _frames(text: str) -> int:
     return value
 
 
+def _rate(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be a number of Hz, got {text!r}') from None
+    if not 5.0 <= value <= 120.0:
+        raise argparse.ArgumentTypeError(f'must be 5 to 120 Hz, got {text}')
+    return value
+
+
 def _supersample(text: str) -> int:
     value = _integer(text)
     if not 1 <= value <= 4:
@@ -194,7 +204,10 @@ def _build_parser() -> _Parser:
     parser.add_argument('--seeds', type=_seeds, default=[1, 2, 3, 4],
                         help='comma-separated seeds, one drive each (default 1,2,3,4)')
     parser.add_argument('--frames', type=_frames, default=300,
-                        help='frames per drive at 30 Hz (default %(default)s: 10 s, 46 m)')
+                        help='frames per drive (default %(default)s: 10 s and 46 m at 30 Hz)')
+    parser.add_argument('--rate', type=_rate, default=30.0, metavar='HZ',
+                        help='camera frame rate (default %(default)g; the same path at any rate, '
+                             'longer per frame at a lower one)')
     parser.add_argument('--supersample', type=_supersample, default=1, metavar='S',
                         help='render S x S rays a pixel, averaged, as a sensor integrates its '
                              'pixel (default 1: one ray, mip-mapped; 2 takes about 2x as long)')
@@ -215,18 +228,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         done += 1
         progress.update(done)
 
-    drives = {seed: run_drive(args.scenario, args.frames, seed, tick=tick,
+    drives = {seed: run_drive(args.scenario, args.frames, seed, args.rate, tick=tick,
                               supersample=args.supersample)
               for seed in args.seeds}
     progress.close()
     summary = _summary(drives)
     if args.json:
         print(json.dumps({'scenario': args.scenario, 'frames': args.frames,
-                          'supersample': args.supersample,
+                          'rate': args.rate, 'supersample': args.supersample,
                           'drives': {str(s): d for s, d in drives.items()},
                           'summary': summary}))
     else:
-        _print_table(args.scenario, args.frames, args.supersample, drives, summary)
+        _print_table(args.scenario, args.frames, args.rate, args.supersample, drives, summary)
     return 0
 
 

@@ -18,10 +18,10 @@ def test_experiment_reports_every_variant_and_the_ratios():
     """One 40-frame `car` drive, rendered with 2 x 2 rays a pixel: every variant scored
     against the renderer's path, the rigid mount as accurate as on any rigid drive, and the
     ratios those means give."""
-    run = _run('--frames', '40', '--seeds', '3', '--supersample', '2', '--json')
+    run = _run('--frames', '40', '--seeds', '3', '--supersample', '2', '--rate', '20', '--json')
     assert run.returncode == 0, run.stderr
     out = json.loads(run.stdout)
-    assert out['supersample'] == 2
+    assert out['supersample'] == 2 and out['rate'] == 20
     drive = out['drives']['3']
     assert set(drive) == set(VARIANTS)
     assert all(np.isfinite(v['t_rel_percent']) and v['path_length_m'] > 4 for v in drive.values())
@@ -41,6 +41,7 @@ def test_experiment_bad_arguments_are_one_line_and_exit_2():
                           (('--seeds', '1,x'), 'comma-separated integers'),
                           (('--seeds', '1,1'), 'distinct'),
                           (('--supersample', '0'), 'must be 1 to 4'),
+                          (('--rate', 'fast'), 'number of Hz'), (('--rate', '1'), '5 to 120'),
                           (('--scenario', 'default'), 'invalid choice')):
         run = _run(*args)
         err = run.stderr.strip().splitlines()
