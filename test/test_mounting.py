@@ -231,3 +231,26 @@ def test_a_frame_rejected_for_too_few_inliers_teaches_the_attitude_nothing(sprun
     assert np.array_equal(vo._rate2, start[1])
     assert vo.mounting_estimate().seconds == start[2] == 0.0
     assert vo._height.samples == 0 and vo._height.walk == 0
+
+
+def test_a_rough_road_at_20_hz_keeps_tracking_through_its_jolts():
+    """`rough` seed 4 at 20 Hz (the rate of the issue's renderer), 120 frames (6 s, 28 m):
+    at frame 69 the body pitches 0.35 deg in one frame. When the hypotheses saw both frames
+    at the reference's attitude with the 0.5 px inlier threshold, they found 3-7 inliers of
+    500 there, three frames went unestimated and tracking restarted: t_rel 0.82 %. Now every
+    frame is estimated; measured 0.094 %."""
+    renderer, traj = synth.render_scenario('rough', 120, 4, rate=20.0)
+    images = [renderer.render_frame(traj, k) for k in range(120)]
+    body = synth.SCENARIOS['rough'].suspension
+    m = renderer.mounting
+    params = config.validate({
+        'camera_x': m.x, 'camera_y': m.y, 'camera_height': m.height, 'camera_roll': m.roll,
+        'camera_pitch': m.pitch, 'camera_yaw': m.yaw, 'max_features': 700,
+        'estimate_attitude': True, 'self_calibrate': False,
+        'body_pivot_below_camera': m.height - body.pivot_z,
+        'body_pivot_behind_camera': m.x - body.pivot_x})
+    vo = VisualOdometry.from_params(synth_camera_model(renderer), params)
+    results = [vo.process(image, k / 20.0) for k, image in enumerate(images)]
+    met = _metrics(results, traj)  # every frame estimated
+    assert met['t_rel_percent'] < 0.2, met
+    assert met['r_rel_deg_per_100m'] < 2.0, met
