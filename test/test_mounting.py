@@ -254,3 +254,30 @@ def test_a_rough_road_at_20_hz_keeps_tracking_through_its_jolts():
     met = _metrics(results, traj)  # every frame estimated
     assert met['t_rel_percent'] < 0.2, met
     assert met['r_rel_deg_per_100m'] < 2.0, met
+
+
+def test_a_sprung_car_at_20_hz_with_auto_exposure_changes():
+    """The issue's hardest row as rendered here: the sprung `car` body at 20 Hz with the gain
+    drifting and stepping within +-20 % (seed 2, 200 frames, 46 m). Every frame estimated,
+    and nearly as accurate as without the gain changes. Measured: t_rel 0.046 % (0.038 %
+    without), r_rel 0.16 deg/100 m (the design's bar for such a drive: 0.3 % and 2)."""
+    rows = {}
+    for exposure in (0.0, 0.2):
+        renderer, traj = synth.render_scenario('car', 200, 2, rate=20.0, exposure=exposure)
+        images = [renderer.render_frame(traj, k) for k in range(200)]
+        body = synth.SCENARIOS['car'].suspension
+        m = renderer.mounting
+        params = config.validate({
+            'camera_x': m.x, 'camera_y': m.y, 'camera_height': m.height, 'camera_roll': m.roll,
+            'camera_pitch': m.pitch, 'camera_yaw': m.yaw, 'max_features': 700,
+            'estimate_attitude': True, 'self_calibrate': False,
+            'body_pivot_below_camera': m.height - body.pivot_z,
+            'body_pivot_behind_camera': m.x - body.pivot_x})
+        vo = VisualOdometry.from_params(synth_camera_model(renderer), params)
+        rows[exposure] = _metrics([vo.process(image, k / 20.0) for k, image in enumerate(images)],
+                                  traj)
+    gains = renderer.exposure
+    assert gains.max() / gains.min() > 1.2  # the gain did change
+    assert rows[0.2]['t_rel_percent'] < 0.15, rows
+    assert rows[0.2]['t_rel_percent'] < 1.5 * rows[0.0]['t_rel_percent'], rows
+    assert rows[0.2]['r_rel_deg_per_100m'] < 2.0, rows
