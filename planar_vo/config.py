@@ -106,6 +106,10 @@ SCHEMA: tuple[Param, ...] = (
     Param('klt_prewarp', True, 'Warp the last image through the ground by the motion the '
           'last twist predicts before KLT, so its windows do not deform (less bias in scale, '
           'yaw and attitude; about 0.5 ms a frame). Off: use inlier_threshold 1.0.'),
+    Param('klt_first_search', True, 'With no twist to predict the tracks (the first frame '
+          'pair after a start or a restart), search the planar motion that aligns the two '
+          'images through the ground and track from it, warped: at 10-15 Hz and 7.5 m/s KLT '
+          'alone keeps a few tracks of that pair (20-70 ms, once).'),
     Param('horizon_margin', math.radians(12.0),
           'Use only rays at least this far below the horizon, rad: points just below it are '
           'often not ground yet move like it.', 0.0, 1.4),

@@ -35,6 +35,7 @@ from planar_vo.camera import (
     Mounting,
     rays_through,
 )
+from planar_vo.motion_search import GroundMotionSearch
 from planar_vo.ransac import (
     PoseEstimationError,
     RansacResult,
@@ -192,6 +193,7 @@ class VisualOdometry:
         attitude: AttitudeNoise | None = None,
         self_calibrate: bool = True,
         klt_prewarp: bool = True,
+        klt_first_search: bool = True,
     ) -> None:
         # The defaults are the parameter schema's (a test holds them to it); the tracker's
         # window is the one for the warp (Tracker's own default suits KLT without it).
@@ -211,6 +213,7 @@ class VisualOdometry:
         self.pivot_arm = np.zeros(3) if attitude is None else attitude.pivot_arm
         self.self_calibrate = self_calibrate and attitude is not None
         self.klt_prewarp = klt_prewarp  # see planar_vo.warp
+        self.klt_first_search = klt_first_search  # see planar_vo.motion_search
         self.configured_mounting = mounting
         self.calibrator = MountingCalibrator(mounting)
         self._update_geometry(camera, mounting, check_round_trip=True)
@@ -231,7 +234,8 @@ class VisualOdometry:
             circular_refine=params['circular_refine'], min_inliers=params['min_inliers'],
             max_frame_gap=params['max_frame_gap'],
             attitude=AttitudeNoise.from_params(params) if params['estimate_attitude'] else None,
-            self_calibrate=params['self_calibrate'], klt_prewarp=params['klt_prewarp'])
+            self_calibrate=params['self_calibrate'], klt_prewarp=params['klt_prewarp'],
+            klt_first_search=params['klt_first_search'])
 
     def reset(self) -> None:
         """Restart at the origin with no tracks."""
@@ -246,6 +250,7 @@ class VisualOdometry:
         self._failed_frames = 0
         self._reset_attitude()
         self._warp: GroundWarp | None = None
+        self._search: GroundMotionSearch | None = None
 
     def _reset_attitude(self) -> None:
         """Attitude known only as well as the body's spread around its learned mean."""
@@ -401,8 +406,8 @@ class VisualOdometry:
             self._detect(is_reference=True, gray=gray)
             return self._result(stamp, 'first', t0)
         mounting, model = self._current_geometry()
-        motion = twist_motion(self.twist, stamp - previous)  # the last twist's prediction
-        predicted = self._predict_tracks(motion, mounting, model)
+        motion = self._predicted_motion(gray, stamp - previous, model)
+        predicted = None if motion is None else self._predict_tracks(motion, mounting, model)
         warp = None
         if predicted is not None and self.klt_prewarp and self._ref_stamp == previous:
             if self._warp is None or self._warp.camera is not self.camera:
@@ -417,15 +422,30 @@ class VisualOdometry:
         result.timing_ms['total'] = 1e3 * (time.perf_counter() - t0)
         return result
 
+    def _predicted_motion(self, gray: np.ndarray, dt: float,
+                          model: TransferModel) -> np.ndarray | None:
+        """The motion KLT starts from: the last twist held over ``dt``.
+
+        With no twist to trust (the first pair after a start or a restart), the motion that
+        aligns the last image with ``gray`` through the ground (``model``'s), if any.
+        """
+        if np.any(self.twist) and self.twist_covariance[0, 0] < _LOST_TWIST_VARIANCE:
+            return twist_motion(self.twist, dt)
+        if not self.klt_first_search or not len(self.tracker.points):
+            return None
+        if self._search is None or self._search.camera is not self.camera:
+            self._search = GroundMotionSearch(self.camera)
+        return self._search.search(self.tracker.last_image, gray, dt, model,
+                                   self.horizon_margin)
+
     def _predict_tracks(self, motion: np.ndarray, mounting: Mounting,
                         model: TransferModel) -> np.ndarray | None:
-        """Pixels (N, 2) where ground tracks should be after ``motion``, the last twist's.
+        """Pixels (N, 2) where ground tracks should be after ``motion``.
 
         ``mounting`` and ``model``: the current geometry (:meth:`_current_geometry`).
         """
         points = self.tracker.points
-        if not len(points) or not np.any(self.twist) or self.twist_covariance[0, 0] >= (
-                _LOST_TWIST_VARIANCE):
+        if not len(points):
             return None
         ground, valid = mounting.ground_points(rays_through(self.tracker.points_normalized))
         predicted = points.astype(np.float64)

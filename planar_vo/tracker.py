@@ -65,6 +65,11 @@ class Tracker:
         return self._lk['winSize'][0]
 
     @property
+    def last_image(self) -> np.ndarray | None:
+        """The last image tracked (what the next one is matched against), None before it."""
+        return self._image
+
+    @property
     def image_shape(self) -> tuple[int, int] | None:
         """(height, width) of the last image tracked, None before the first."""
         return None if self._image is None else self._image.shape[:2]

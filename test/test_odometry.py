@@ -271,7 +271,7 @@ def test_constructor_defaults_are_the_parameter_schemas():
     schema = VisualOdometry.from_params(camera, params)
     for name in ('horizon_margin', 'ransac_method', 'inlier_threshold', 'ransac_confidence',
                  'circular_refine', 'min_inliers', 'max_frame_gap', 'klt_prewarp',
-                 'attitude_noise', 'self_calibrate'):
+                 'klt_first_search', 'attitude_noise', 'self_calibrate'):
         assert getattr(direct, name) == getattr(schema, name), name
     for name in ('max_features', 'quality_level', 'min_distance', 'window', 'levels',
                  'fb_threshold'):
