@@ -28,8 +28,11 @@ _SAMPLE_STEP = 2  # every second pixel of the small image, both ways
 # The motions searched: up to this fast forward, backward, and turning (per second).
 _MAX_SPEED, _MAX_REVERSE, _MAX_YAW_RATE = 25.0, 5.0, 1.5  # m/s, m/s, rad/s
 _COARSE_STEP = (0.08, 0.02)  # m, rad: the first grid (found the motion on every tried pair)
+# The first grid's size is capped (its steps then grow): frames up to max_frame_gap (1 s)
+# apart would ask for 56 000 motions. Motions are scored this many at a time (memory).
+_MAX_COARSE, _CHUNK = 600, 64
 _REFINEMENTS, _SHRINK = 3, 2.5  # then 7 x 7 grids, each this much finer, about the best
-_MIN_CORRELATION = 0.5  # below it the images do not match: no prediction
+_MIN_CORRELATION = 0.8  # below, the images do not match (0.94-0.99 where they did)
 _MIN_SHARED = 0.25  # of the ground samples, seen in both images
 
 
@@ -91,14 +94,20 @@ class GroundMotionSearch:
         ground, new = ground[seen], new[seen]
         old = self._small(last)
         rho_step, yaw_step = _COARSE_STEP
+        spans = ((_MAX_SPEED + _MAX_REVERSE) * dt, 2 * _MAX_YAW_RATE * dt)
+        size = (spans[0] / rho_step + 1) * (spans[1] / yaw_step + 1)
+        if size > _MAX_COARSE:
+            grow = np.sqrt(size / _MAX_COARSE)
+            rho_step, yaw_step = rho_step * grow, yaw_step * grow
         rho = np.arange(-_MAX_REVERSE * dt, _MAX_SPEED * dt + rho_step, rho_step)
         yaw = np.arange(-_MAX_YAW_RATE * dt, _MAX_YAW_RATE * dt + yaw_step, yaw_step)
         best, score = (0.0, 0.0), -np.inf
         for _ in range(_REFINEMENTS + 1):
             rr, yy = np.meshgrid(rho, yaw)
             candidates = np.c_[rr.ravel(), yy.ravel()]
-            scores = self._scores(old, new, ground, circular_motion(candidates[:, 1],
-                                                                     candidates[:, 0]), model)
+            motions = circular_motion(candidates[:, 1], candidates[:, 0])
+            scores = np.concatenate([self._scores(old, new, ground, motions[i:i + _CHUNK], model)
+                                     for i in range(0, len(motions), _CHUNK)])
             i = int(np.argmax(scores))
             best, score = tuple(candidates[i]), float(scores[i])
             rho_step, yaw_step = rho_step / _SHRINK, yaw_step / _SHRINK
