@@ -30,6 +30,9 @@ def test_reports_the_reference_pipeline_ratios_and_the_runs_accuracy(capsys):
     # And with the tracks advised for a sprung body.
     assert ratios['attitude_700_tracks_over_whole_frame'] == pytest.approx(
         median['whole_frame_with_attitude_700_tracks'] / median['whole_frame_with_decode'])
+    # And the ground search of a first pair, on every pair of the bag.
+    assert ratios['first_pair_search_over_whole_frame'] == pytest.approx(
+        median['first_pair_ground_search'] / median['whole_frame_with_decode'])
     # Both pipelines hold about the same number of tracks: the ratio compares like with like.
     assert 300 <= out['tracks_per_frame']['opencv_reference'] <= 400
     assert 300 <= out['tracks_per_frame']['planar_vo'] <= 400
