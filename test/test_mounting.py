@@ -13,16 +13,20 @@ import pytest
 
 from planar_vo import config, evaluate, resources, synth
 from planar_vo.odometry import VisualOdometry
-from test.conftest import synth_camera_model
+from test.conftest import sprung_body_params, synth_camera_model
 
 
-def _run(renderer, images, truth_mounting, overrides):
+def _params(truth_mounting, overrides):
     m = truth_mounting
-    params = config.validate({'camera_x': m.x, 'camera_y': m.y, 'camera_height': m.height,
-                              'camera_roll': m.roll, 'camera_pitch': m.pitch,
-                              'camera_yaw': m.yaw, **overrides})
-    vo = VisualOdometry.from_params(synth_camera_model(renderer), params)
-    return [vo.process(image, k / 30.0) for k, image in enumerate(images)]
+    return config.validate({'camera_x': m.x, 'camera_y': m.y, 'camera_height': m.height,
+                            'camera_roll': m.roll, 'camera_pitch': m.pitch,
+                            'camera_yaw': m.yaw, **overrides})
+
+
+def _run(renderer, images, truth_mounting, overrides, rate=30.0):
+    vo = VisualOdometry.from_params(synth_camera_model(renderer),
+                                    _params(truth_mounting, overrides))
+    return [vo.process(image, k / rate) for k, image in enumerate(images)]
 
 
 def _metrics(results, traj):
@@ -94,18 +98,10 @@ def test_sprung_body_is_over_3x_better_than_a_plain_opencv_pipeline(sprung_car):
     features 1.25 % against 0.068 %)."""
     from planar_vo.mounting_experiment import plain_opencv_path
     renderer, traj, images = sprung_car
-    body = synth.SCENARIOS['car'].suspension
-    m = renderer.mounting
-    params = config.validate({
-        'camera_x': m.x, 'camera_y': m.y, 'camera_height': m.height, 'camera_roll': m.roll,
-        'camera_pitch': m.pitch, 'camera_yaw': m.yaw, 'max_features': 700,
-        'estimate_attitude': True, 'self_calibrate': False,
-        'body_pivot_below_camera': m.height - body.pivot_z,
-        'body_pivot_behind_camera': m.x - body.pivot_x})
-    truth = np.c_[traj.x, traj.y, traj.yaw]
+    params = _params(renderer.mounting, sprung_body_params('car'))  # 700 features for both
     plain = evaluate.metrics(plain_opencv_path(synth_camera_model(renderer), params, images),
-                             truth)
-    ours = _metrics(_run(renderer, images, m, params), traj)
+                             np.c_[traj.x, traj.y, traj.yaw])
+    ours = _metrics(_run(renderer, images, renderer.mounting, params), traj)
     assert plain['t_rel_percent'] > 3.0 * ours['t_rel_percent'], (plain, ours)
     assert ours['r_rel_deg_per_100m'] < plain['r_rel_deg_per_100m'], (plain, ours)
 
@@ -241,17 +237,8 @@ def test_a_rough_road_at_20_hz_keeps_tracking_through_its_jolts():
     frame is estimated; measured 0.094 %."""
     renderer, traj = synth.render_scenario('rough', 120, 4, rate=20.0)
     images = [renderer.render_frame(traj, k) for k in range(120)]
-    body = synth.SCENARIOS['rough'].suspension
-    m = renderer.mounting
-    params = config.validate({
-        'camera_x': m.x, 'camera_y': m.y, 'camera_height': m.height, 'camera_roll': m.roll,
-        'camera_pitch': m.pitch, 'camera_yaw': m.yaw, 'max_features': 700,
-        'estimate_attitude': True, 'self_calibrate': False,
-        'body_pivot_below_camera': m.height - body.pivot_z,
-        'body_pivot_behind_camera': m.x - body.pivot_x})
-    vo = VisualOdometry.from_params(synth_camera_model(renderer), params)
-    results = [vo.process(image, k / 20.0) for k, image in enumerate(images)]
-    met = _metrics(results, traj)  # every frame estimated
+    met = _metrics(_run(renderer, images, renderer.mounting, sprung_body_params('rough'),
+                        rate=20.0), traj)  # every frame estimated
     assert met['t_rel_percent'] < 0.2, met
     assert met['r_rel_deg_per_100m'] < 2.0, met
 
@@ -265,17 +252,8 @@ def test_a_sprung_car_at_20_hz_with_auto_exposure_changes():
     for exposure in (0.0, 0.2):
         renderer, traj = synth.render_scenario('car', 200, 2, rate=20.0, exposure=exposure)
         images = [renderer.render_frame(traj, k) for k in range(200)]
-        body = synth.SCENARIOS['car'].suspension
-        m = renderer.mounting
-        params = config.validate({
-            'camera_x': m.x, 'camera_y': m.y, 'camera_height': m.height, 'camera_roll': m.roll,
-            'camera_pitch': m.pitch, 'camera_yaw': m.yaw, 'max_features': 700,
-            'estimate_attitude': True, 'self_calibrate': False,
-            'body_pivot_below_camera': m.height - body.pivot_z,
-            'body_pivot_behind_camera': m.x - body.pivot_x})
-        vo = VisualOdometry.from_params(synth_camera_model(renderer), params)
-        rows[exposure] = _metrics([vo.process(image, k / 20.0) for k, image in enumerate(images)],
-                                  traj)
+        rows[exposure] = _metrics(_run(renderer, images, renderer.mounting,
+                                       sprung_body_params('car'), rate=20.0), traj)
     gains = renderer.exposure
     assert gains.max() / gains.min() > 1.2  # the gain did change
     assert rows[0.2]['t_rel_percent'] < 0.15, rows
