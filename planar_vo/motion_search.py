@@ -48,8 +48,7 @@ class GroundMotionSearch:
         self.camera = camera
         h, w = camera.height, camera.width
         for _ in range(_LEVELS):
-            h, w = (h + 1) // 2, (w + 1) // 2
-        self._small_shape = (h, w)
+            h, w = (h + 1) // 2, (w + 1) // 2  # pyrDown's size
         K = camera.K
         self._fx, self._fy, self._cx, self._cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
         # Small pixel (i, j) is full-resolution pixel (SCALE j, SCALE i) after pyrDown.
@@ -101,7 +100,6 @@ class GroundMotionSearch:
             rho_step, yaw_step = rho_step * grow, yaw_step * grow
         rho = np.arange(-_MAX_REVERSE * dt, _MAX_SPEED * dt + rho_step, rho_step)
         yaw = np.arange(-_MAX_YAW_RATE * dt, _MAX_YAW_RATE * dt + yaw_step, yaw_step)
-        best, score = (0.0, 0.0), -np.inf
         for _ in range(_REFINEMENTS + 1):
             rr, yy = np.meshgrid(rho, yaw)
             candidates = np.c_[rr.ravel(), yy.ravel()]
