@@ -6,8 +6,9 @@ import pytest
 
 from planar_vo import config
 
-CORE = ['solvers', 'ransac', 'camera', 'tracker', 'odometry', 'config', 'evaluate', 'baselines',
-        'pairing', 'health']
+CORE = ['solvers', 'ransac', 'camera', 'tracker', 'warp', 'motion_search', 'attitude',
+        'calibration', 'twist', 'odometry', 'config', 'evaluate', 'baselines', 'pairing',
+        'health']
 
 
 def test_defaults_are_valid_and_described():
