@@ -140,12 +140,16 @@ class LiveSession:
             cdr = self.received[stamp][1]
         return deserialize_message(cdr, Odometry)
 
+    def _check_alive(self) -> None:
+        """Raise LiveError if the node's process has ended: nothing more will come."""
+        if self.proc.poll() is not None:
+            raise LiveError(f'planar_vo_node exited with status {self.proc.returncode}')
+
     def wait_connected(self, timeout: float = 30.0) -> None:
         """Wait for discovery both ways (matched counts, not a fixed sleep)."""
         end = time.monotonic() + timeout
         while time.monotonic() < end:
-            if self.proc.poll() is not None:
-                raise LiveError(f'planar_vo_node exited with status {self.proc.returncode}')
+            self._check_alive()
             if (self.image_pub.get_subscription_count() and self.info_pub.get_subscription_count()
                     and self.node.count_publishers('/odom')):
                 return
@@ -170,11 +174,12 @@ class LiveSession:
         raise LiveError('planar_vo_node never answered the first frame')
 
     def wait_for(self, stamp: float, timeout: float) -> bool:
-        """True once odom for ``stamp`` has arrived."""
+        """True once odom for ``stamp`` has arrived; LiveError if the node has died."""
         end = time.monotonic() + timeout
         while time.monotonic() < end:
             if stamp in self.received:
                 return True
+            self._check_alive()
             time.sleep(0.002)
         return False
 
@@ -193,6 +198,7 @@ class LiveSession:
     def reset(self, timeout: float = 10.0) -> None:
         """Call ~/reset and forget what was sent and received."""
         from std_srvs.srv import Trigger
+        self._check_alive()
         client = self.node.create_client(Trigger, '/planar_vo/reset')
         if not client.wait_for_service(timeout_sec=timeout):
             raise LiveError('~/reset service not available')

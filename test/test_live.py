@@ -45,3 +45,22 @@ def test_node_at_real_rate_matches_replay_and_ground_truth(dds_env):
     assert accuracy['final_drift_percent'] < 0.5, accuracy
     latency = session.latencies_ms(stamps[1:])
     assert len(latency) == frames - 1 and np.all(latency > 0)
+
+
+def test_a_node_that_dies_is_reported_at_once(dds_env):
+    """The node killed after discovery: the next wait raises LiveError with its exit status
+    instead of waiting out its timeout (a bench once waited over 10 minutes on a dead node)."""
+    import signal
+
+    from planar_vo.live import LiveError
+    stream = BagStream.read(DEFAULT_BAG, limit=2)
+    session = LiveSession(CONFIG, image_type=stream.image_type)
+    try:
+        session.wait_connected()
+        session.proc.send_signal(signal.SIGKILL)
+        session.proc.wait(10)
+        # Without the check it would wait the 60 s out and return False, not raise.
+        with pytest.raises(LiveError, match='exited with status'):
+            session.wait_for(stream.frames[0][0], 60.0)
+    finally:
+        session.close()
