@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from planar_vo.camera import CameraModel, rays_through
-from planar_vo.ransac import TransferModel, circular_motion
+from planar_vo.ransac import TransferModel, circular_motion, inverse_motion
 
 __all__ = ['GroundMotionSearch']
 
@@ -121,20 +121,12 @@ class GroundMotionSearch:
 
         One per motion (K, 3); -2 where too few samples are seen in both images.
         """
-        x, y, yaw = (motions[:, i:i + 1] for i in range(3))
-        c, s = np.cos(yaw), np.sin(yaw)
-        # A ground point of the new frame, in the old one: R(yaw) p + t.
-        gx = c * ground[:, 0] - s * ground[:, 1] + x
-        gy = s * ground[:, 0] + c * ground[:, 1] + y
-        A, b = model.A, model.b
-        P = gx[..., None] * A[:, 0] + gy[..., None] * A[:, 1] + b  # (K, N, 3) optical
-        z = P[..., 2]
-        front = z > 1e-6
-        z = np.where(front, z, 1.0)
-        maps = np.empty(z.shape + (2,), np.float32)
-        maps[..., 0] = (self._fx * P[..., 0] / z + self._cx) / _SCALE
-        maps[..., 1] = (self._fy * P[..., 1] / z + self._cy) / _SCALE
-        maps[~front] = -1e4
+        # Where the new frame's ground points were in the old one, (K, N, 2) normalized.
+        was = model.transfer(inverse_motion(motions), ground)
+        maps = np.empty(was.shape, np.float32)
+        maps[..., 0] = (self._fx * was[..., 0] + self._cx) / _SCALE
+        maps[..., 1] = (self._fy * was[..., 1] + self._cy) / _SCALE
+        maps[~np.isfinite(maps)] = -1e4  # behind the old camera
         values = cv2.remap(old, maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                            borderValue=-1.0)
         shared = values >= 0.0

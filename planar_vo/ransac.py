@@ -51,11 +51,12 @@ class TransferModel:
     def transfer(self, motion: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Normalized coordinates (N, 2) where frame-1 ground points appear after ``motion``.
 
-        NaN where the point would be behind the camera.
+        ``motion`` (3,) or (K, 3): then (K, N, 2), one row per motion. NaN where the point
+        would be behind the camera.
         """
         P = _predict(np.asarray(motion, dtype=float), points, self)
-        z = np.where(P[:, 2] > 1e-6, P[:, 2], np.nan)
-        return P[:, :2] / z[:, None]
+        z = np.where(P[..., 2] > 1e-6, P[..., 2], np.nan)
+        return P[..., :2] / z[..., None]
 
     def project(self, points: np.ndarray) -> np.ndarray:
         """Normalized image coordinates (N, 2) of ground points (N, 2) seen from frame 1."""
@@ -92,6 +93,13 @@ class RansacResult:
 def circular_motion(yaw: np.ndarray, rho: np.ndarray) -> np.ndarray:
     """Circular motion of the axle: travel ``rho`` along the chord at half the yaw, (..., 3)."""
     return np.stack([rho * np.cos(0.5 * yaw), rho * np.sin(0.5 * yaw), yaw], axis=-1)
+
+
+def inverse_motion(motion: np.ndarray) -> np.ndarray:
+    """The planar motion (..., 3) back: base_link 1 in base_link 2, of 2 in 1."""
+    x, y, yaw = motion[..., 0], motion[..., 1], motion[..., 2]
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([-(c * x + s * y), s * x - c * y, -yaw], axis=-1)
 
 
 def _predict(motions: np.ndarray, p1: np.ndarray, model: TransferModel) -> np.ndarray:

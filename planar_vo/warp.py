@@ -16,15 +16,9 @@ import cv2
 import numpy as np
 
 from planar_vo.camera import CameraModel, rays_through
-from planar_vo.ransac import TransferModel
+from planar_vo.ransac import TransferModel, inverse_motion
 
 __all__ = ['GroundWarp']
-
-
-def _inverse(motion: np.ndarray) -> np.ndarray:
-    x, y, yaw = motion
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([-(c * x + s * y), s * x - c * y, -yaw])
 
 
 class GroundWarp:
@@ -57,7 +51,7 @@ class GroundWarp:
         ground, valid = model.mounting.ground_points(self._rays)
         coarse = np.full((len(self._rays), 2), -1e4)
         if np.any(valid):
-            back = self.camera.distort(model.transfer(_inverse(motion), ground[valid]))
+            back = self.camera.distort(model.transfer(inverse_motion(motion), ground[valid]))
             coarse[valid] = np.where(np.isfinite(back), back, -1e4)
         coarse = coarse.reshape(*self._shape, 2).astype(np.float32)
         # One sample more on every side, extrapolated linearly: every pixel then lies between
