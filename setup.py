@@ -44,15 +44,15 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'planar_vo_paper_experiment = planar_vo.paper_experiment:main',
-            'planar_vo_node = planar_vo.node:main',
-            'planar_vo_replay = planar_vo.replay:main',
-            'planar_vo_demo = planar_vo.demo:main',
-            'planar_vo_bench = planar_vo.benchmark:main',
-            'planar_vo_soak = planar_vo.soak:main',
+            'planar_vo_paper_experiment = planar_vo.tools.experiments.paper_experiment:main',
+            'planar_vo_node = planar_vo.ros.node:main',
+            'planar_vo_replay = planar_vo.tools.replay:main',
+            'planar_vo_demo = planar_vo.tools.demo:main',
+            'planar_vo_bench = planar_vo.tools.benchmark:main',
+            'planar_vo_soak = planar_vo.tools.soak:main',
             'planar_vo_synth = planar_vo.synth:main',
-            'planar_vo_calibrate = planar_vo.calibrate:main',
-            'planar_vo_mounting_experiment = planar_vo.mounting_experiment:main',
+            'planar_vo_calibrate = planar_vo.tools.calibrate:main',
+            'planar_vo_mounting_experiment = planar_vo.tools.experiments.mounting_experiment:main',
         ],
     },
 )

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
 
-from planar_vo import resources
-from planar_vo.camera import CameraModel, Mounting
+from planar_vo.core.geometry.camera import CameraModel, Mounting
+from planar_vo.io import resources
 
-# Tests find the package's executables as users do (planar_vo.resources.executable: PATH, then
+# Tests find the package's executables as users do (planar_vo.io.resources.executable: PATH, then
 # lib/planar_vo of a sourced workspace). A venv run without a sourced workspace behaves as if
 # the venv were activated; with a sourced install its lib/planar_vo is what the tests run.
 if sys.prefix != sys.base_prefix and resources.installed_prefix() is None:
@@ -101,8 +101,9 @@ def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, came
     pose of every frame. Returns (results, ground truth poses (N, 3)), and with ``twist``
     also the renderer's instantaneous body twist (vx, vy, yaw rate) at each stamp (N, 3).
     """
-    from planar_vo import config, synth
-    from planar_vo.odometry import VisualOdometry
+    from planar_vo import synth
+    from planar_vo.core import config
+    from planar_vo.core.odometry import VisualOdometry
 
     renderer, traj = synth.render_scenario(scenario, frames, seed, rate=rate, camera=camera,
                                            mounting=mounting, suspension=suspension,

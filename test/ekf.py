@@ -6,8 +6,8 @@ walk driven by white acceleration noise; measurements are body twists with a cov
 
 import numpy as np
 
-from planar_vo.odometry import compose
-from planar_vo.twist import twist_motion
+from planar_vo.core.estimation.twist import twist_motion
+from planar_vo.core.odometry import compose
 
 
 class PlanarEkf:

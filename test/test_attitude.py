@@ -3,15 +3,15 @@
 import numpy as np
 import pytest
 
-from planar_vo.attitude import (
+from planar_vo.core.estimation.attitude import (
     AttitudePrior,
     body_tilt,
     refine_with_attitude,
     tilted_mounting,
     transfer_residuals,
 )
-from planar_vo.camera import Mounting, rays_through
-from planar_vo.ransac import PoseEstimationError, TransferModel
+from planar_vo.core.estimation.ransac import PoseEstimationError, TransferModel
+from planar_vo.core.geometry.camera import Mounting, rays_through
 from test.conftest import move_points, observe
 
 MOUNTING = Mounting(x=1.2, y=0.1, height=1.25, pitch=np.radians(8.0), roll=0.01, yaw=0.02)
@@ -152,7 +152,7 @@ def test_height_walk_follows_the_bounce_not_the_noise_or_the_bias():
     1.5 mm rms, its variance learned is the bounce's, and the error it declares covers the
     one it makes. Without a bounce all of them are near zero, and told the body does not
     move (a rigid mount) it sums nothing."""
-    from planar_vo.attitude import HeightWalk
+    from planar_vo.core.estimation.attitude import HeightWalk
     rng = np.random.default_rng(3)
     dt, t = 1 / 30, np.arange(0, 20, 1 / 30)
     for amplitude, low, high in ((0.010, 0.0063, 0.0078), (0.0, 0.0, 0.001)):
@@ -181,7 +181,7 @@ def test_height_walk_bias_is_not_thrown_by_a_slow_bounce():
     the walk removes stays within 0.8 mm/s of the truth. The changes' 5 s running mean,
     which it replaced, is the bounce's end minus its start over the window: off by 2.2-2.6
     mm/s on this bounce."""
-    from planar_vo.attitude import HeightWalk
+    from planar_vo.core.estimation.attitude import HeightWalk
     dt, t = 1 / 30, np.arange(0, 20, 1 / 30)
     for seed in range(3):
         rng = np.random.default_rng(seed)
@@ -200,7 +200,7 @@ def test_height_walk_bias_is_not_thrown_by_a_slow_bounce():
 def test_self_calibration_reports_the_uncertainty_of_what_it_applied():
     """Steps that slip sideways by rho * eta (a camera yawed eta off): the calibrator applies
     -eta to the working yaw and says how well it knows it; nothing applied, nothing said."""
-    from planar_vo.calibration import MountingCalibrator
+    from planar_vo.core.estimation.calibration import MountingCalibrator
     calibrator = MountingCalibrator(MOUNTING)
     assert not calibrator.applied_covariance().any()
     rng = np.random.default_rng(5)

@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from planar_vo import resources
-from planar_vo.benchmark import main
+from planar_vo.io import resources
+from planar_vo.tools.benchmark import main
 
 BAG = resources.default_bag()
 

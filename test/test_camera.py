@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from planar_vo import solvers
-from planar_vo.camera import CameraModel, CameraModelError, Mounting, level_to_base
+from planar_vo.core.geometry import solvers
+from planar_vo.core.geometry.camera import CameraModel, CameraModelError, Mounting, level_to_base
 from test.conftest import move_points, observe
 
 
@@ -104,7 +104,7 @@ def test_implausible_calibrations_are_refused_with_the_reason(K, D, size, reason
 
 
 def test_a_lens_model_that_cannot_be_inverted_over_the_ground_is_refused(car_camera):
-    from planar_vo.odometry import VisualOdometry
+    from planar_vo.core.odometry import VisualOdometry
     good, mounting = car_camera
     good = CameraModel(good.K, good.D, 'plumb_bob', 640, 480)
     vo = VisualOdometry(good, mounting)

@@ -11,7 +11,7 @@ they must be under 5 % of the frames. Add sprung-body scenarios to SCENARIOS by 
 import numpy as np
 import pytest
 
-from planar_vo import resources
+from planar_vo.io import resources
 from test.conftest import drive
 from test.ekf import PlanarEkf
 
@@ -148,7 +148,7 @@ def test_a_filter_fusing_the_twist_stays_consistent(scenario, frames, rate, whee
 
 def odometry_twists(bag, topic):
     """{stamp: (twist (3,), covariance (3, 3))} of the Odometry messages on ``topic``."""
-    from planar_vo.bag import open_reader
+    from planar_vo.io.bag import open_reader
 
     axes = [0, 1, 5]  # vx, vy, vyaw in the 6x6 (x, y, z, roll, pitch, yaw) layout
     out = {}
@@ -167,8 +167,8 @@ def test_bundled_bag_odometry_is_consistent_with_its_ground_truth_twist(tmp_path
     """As a user would check it: replay `bags/default` to a bag, read /odom back and compare
     each twist message with /ground_truth/odom at the same stamp."""
 
-    from planar_vo import config
-    from planar_vo.replay import replay
+    from planar_vo.core import config
+    from planar_vo.tools.replay import replay
 
     root = resources.share_dir()
     replay(root / 'bags' / 'default', config.load_params_file(root / 'config' / 'planar_vo.yaml'),

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from planar_vo import evaluate
+from planar_vo.core import evaluate
 
 
 def circle(n=400, radius=20.0, scale=1.0, yaw_bias=0.0):

@@ -2,7 +2,7 @@
 
 from types import SimpleNamespace
 
-from planar_vo.health import ERROR, OK, WARN, Health
+from planar_vo.ros.health import ERROR, OK, WARN, Health
 
 
 def result(status, message=''):
@@ -99,7 +99,7 @@ def test_images_dated_out_of_order_or_in_a_burst_give_no_absurd_rate():
 
 
 def test_median_processing_time_is_over_the_latest_frames_only():
-    from planar_vo.health import RECENT_FRAMES
+    from planar_vo.ros.health import RECENT_FRAMES
     health = Health()
     slow = SimpleNamespace(status='ok', message='', tracks=200, inliers=150, rms_px=0.1,
                            timing_ms={'total': 50.0})

@@ -5,9 +5,9 @@ import os
 import numpy as np
 import pytest
 
-from planar_vo import config, evaluate
-from planar_vo.live import BagStream, LiveSession
-from planar_vo.replay import replay
+from planar_vo.core import config, evaluate
+from planar_vo.tools.live_session import BagStream, LiveSession
+from planar_vo.tools.replay import replay
 from test.test_node import CONFIG, DEFAULT_BAG
 
 
@@ -52,7 +52,7 @@ def test_a_node_that_dies_is_reported_at_once(dds_env):
     instead of waiting out its timeout (a bench once waited over 10 minutes on a dead node)."""
     import signal
 
-    from planar_vo.live import LiveError
+    from planar_vo.tools.live_session import LiveError
     stream = BagStream.read(DEFAULT_BAG, limit=2)
     session = LiveSession(CONFIG, image_type=stream.image_type)
     try:

@@ -11,10 +11,10 @@ import pytest  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image  # noqa: E402
 
-from planar_vo import messages  # noqa: E402
-from planar_vo.camera import CameraModelError  # noqa: E402
-from planar_vo.messages import ImageError  # noqa: E402
-from planar_vo.odometry import FrameResult  # noqa: E402
+from planar_vo.core.geometry.camera import CameraModelError  # noqa: E402
+from planar_vo.core.odometry import FrameResult  # noqa: E402
+from planar_vo.ros import messages  # noqa: E402
+from planar_vo.ros.messages import ImageError  # noqa: E402
 
 H, W = 48, 64
 

@@ -5,10 +5,11 @@ Truth: the renderer's path (planar_vo.synth builds its camera on its own path)."
 import numpy as np
 import pytest
 
-from planar_vo import config, synth
-from planar_vo.motion_search import GroundMotionSearch
-from planar_vo.odometry import VisualOdometry, mounting_from_params
-from planar_vo.ransac import TransferModel
+from planar_vo import synth
+from planar_vo.core import config
+from planar_vo.core.estimation.ransac import TransferModel
+from planar_vo.core.frontend.motion_search import GroundMotionSearch
+from planar_vo.core.odometry import VisualOdometry, mounting_from_params
 from test.conftest import synth_camera_model
 
 

@@ -1,7 +1,7 @@
 """Real mountings end to end: a sprung body, a mounting configured wrong, planar_vo_calibrate.
 
 Truth is the renderer's (planar_vo.synth builds the camera pose on its own path, not with
-planar_vo.camera). Numbers measured when these tests were written are in the README.
+planar_vo.core.geometry.camera). Numbers measured when these tests were written are in the README.
 """
 
 import json
@@ -11,8 +11,10 @@ import subprocess
 import numpy as np
 import pytest
 
-from planar_vo import config, evaluate, resources, synth
-from planar_vo.odometry import VisualOdometry
+from planar_vo import synth
+from planar_vo.core import config, evaluate
+from planar_vo.core.odometry import VisualOdometry
+from planar_vo.io import resources
 from test.conftest import sprung_body_params, synth_camera_model
 
 
@@ -96,7 +98,7 @@ def test_sprung_body_is_over_3x_better_than_a_plain_opencv_pipeline(sprung_car):
     the same 700-feature budget and the true mounting. Measured (200 frames, 31 m): plain
     pipeline 0.74 % / 1.6 deg/100 m (scale 0.993), ours 0.047 % / 0.15 (16x; with 400
     features 1.25 % against 0.068 %)."""
-    from planar_vo.mounting_experiment import plain_opencv_path
+    from planar_vo.tools.experiments.mounting_experiment import plain_opencv_path
     renderer, traj, images = sprung_car
     params = _params(renderer.mounting, sprung_body_params('car'))  # 700 features for both
     plain = evaluate.metrics(plain_opencv_path(synth_camera_model(renderer), params, images),

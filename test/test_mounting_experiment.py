@@ -5,8 +5,14 @@ import subprocess
 
 import numpy as np
 
-from planar_vo import resources
-from planar_vo.mounting_experiment import OPENCV, OURS, PLAIN_OPENCV, RIGID, VARIANTS
+from planar_vo.io import resources
+from planar_vo.tools.experiments.mounting_experiment import (
+    OPENCV,
+    OURS,
+    PLAIN_OPENCV,
+    RIGID,
+    VARIANTS,
+)
 
 
 def _run(*args):

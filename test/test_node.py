@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planar_vo import resources
+from planar_vo.io import resources
 
 CONFIG = resources.default_params()
 DEFAULT_BAG = resources.default_bag()
@@ -429,7 +429,7 @@ def test_bad_inputs_leave_the_node_alive(ros, feeder, node_b):
     from sensor_msgs.msg import Image
     from std_srvs.srv import Trigger
 
-    from planar_vo.messages import gray_to_image
+    from planar_vo.ros.messages import gray_to_image
 
     # Wrong encoding, sent until the warning shows (the node must still warn only once).
     # Small frames: 1.2 MB float frames to a best-effort subscription were all lost to Fast
@@ -530,7 +530,7 @@ def test_compressed_transport_under_namespace_and_remap(ros, ros_env, bag):
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import CameraInfo, CompressedImage
 
-    from planar_vo.messages import image_to_gray
+    from planar_vo.ros.messages import image_to_gray
     node = NodeProcess(ros_env, '-r', '__ns:=/car', '-r', 'image:=/front/image_raw',
                        '-p', 'image_transport:=compressed')
     try:

@@ -19,7 +19,7 @@ def node(ros_env):  # noqa: F811
     import rclpy
     from rclpy.context import Context
 
-    from planar_vo.node import PlanarVoNode
+    from planar_vo.ros.node import PlanarVoNode
     ctx = Context()
     rclpy.init(context=ctx)
     node = PlanarVoNode(context=ctx)
@@ -46,7 +46,7 @@ def test_a_changed_calibration_after_repeats_is_applied(node):
 
 
 def test_a_refused_calibration_is_checked_again_each_time(node):
-    from planar_vo.camera import CameraModelError
+    from planar_vo.core.geometry.camera import CameraModelError
     for _ in range(2):  # uncalibrated: refused, every time
         with pytest.raises(CameraModelError):
             node._camera_model(_info(0.0))

@@ -21,7 +21,7 @@ def in_process_node(monkeypatch):
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
 
-    from planar_vo.node import PlanarVoNode
+    from planar_vo.ros.node import PlanarVoNode
     ctx = Context()
     rclpy.init(context=ctx)
     node = PlanarVoNode(context=ctx)
@@ -84,7 +84,7 @@ def test_warnings_are_throttled_per_cause_with_bounded_memory(in_process_node, c
 
 def test_an_image_counts_as_arrived_when_the_middleware_received_it():
     """A frame queued 0.3 s while the node was busy arrived 0.3 s ago, not now."""
-    from planar_vo.node import _received_monotonic
+    from planar_vo.ros.node import _received_monotonic
     before = time.monotonic()
     queued = _received_monotonic({'received_timestamp': time.time_ns() - 300_000_000})
     assert before - 0.31 < queued < time.monotonic() - 0.29

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from planar_vo.messages import gray_to_image, image_to_gray, planar_pose
+from planar_vo.ros.messages import gray_to_image, image_to_gray, planar_pose
 from test import test_node
 from test.test_node import NodeProcess, send_lockstep, stamp_ns, wait_for
 

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from planar_vo import config, evaluate
-from planar_vo.camera import CameraModel, Mounting
-from planar_vo.odometry import VisualOdometry, compose
+from planar_vo.core import config, evaluate
+from planar_vo.core.geometry.camera import CameraModel, Mounting
+from planar_vo.core.odometry import VisualOdometry, compose
 from test.conftest import drive, run_scenario
 
 
@@ -146,7 +146,7 @@ def test_an_exception_inside_process_leaves_the_state_as_it_was():
     """A frame OpenCV cannot track (float pixels: a caller's bug) raises, and changes nothing."""
     import cv2
 
-    from planar_vo.odometry import VisualOdometry
+    from planar_vo.core.odometry import VisualOdometry
     from test.test_properties import PARAMS, Frames
     frames = Frames(6)
     vo = VisualOdometry.from_params(frames.camera, PARAMS)
@@ -172,12 +172,12 @@ def _relative(a, b):
 
 def _render(scenario, frames):
     from planar_vo import synth
-    from planar_vo.odometry import VisualOdometry
+    from planar_vo.core.odometry import VisualOdometry
     from test.conftest import synth_camera_model
     renderer, traj = synth.render_scenario(scenario, frames, 0)
     camera = synth_camera_model(renderer)
     images = [renderer.render(traj.x[k], traj.y[k], traj.yaw[k], k) for k in range(frames)]
-    from planar_vo import config
+    from planar_vo.core import config
     vo = VisualOdometry.from_params(camera, config.defaults())
     return vo, camera, images, np.c_[traj.x, traj.y, traj.yaw]
 
@@ -201,7 +201,7 @@ def test_set_pose_continues_from_the_given_pose_and_covariance():
 def test_a_camera_briefly_of_another_size_keeps_the_tracks():
     """A wrong CameraInfo (another size) used for one frame, then the right one again: only
     that frame is lost; the next is measured from the tracks of the frame before it."""
-    from planar_vo.camera import CameraModel
+    from planar_vo.core.geometry.camera import CameraModel
     vo, camera, images, truth = _render('gentle', 30)
     results = [vo.process(images[k], k / 30.0) for k in range(20)]
     vo.set_camera(CameraModel(camera.K, camera.D, camera.distortion_model, camera.width + 1,
@@ -220,7 +220,7 @@ def test_a_new_image_size_restarts_tracking_and_keeps_the_motion():
     """Binning switched on mid-run: a CameraInfo of the new size, tracking restarts."""
     import cv2
 
-    from planar_vo.camera import CameraModel
+    from planar_vo.core.geometry.camera import CameraModel
     vo, camera, images, truth = _render('gentle', 40)
     binned = CameraModel(np.diag([0.5, 0.5, 1.0]) @ camera.K, camera.D,
                          camera.distortion_model, camera.width // 2, camera.height // 2)
@@ -282,7 +282,7 @@ def test_pose_covariance_holds_correlated_step_errors_and_a_persistent_scale_err
     """Against simulation: steps whose errors are exponentially correlated over the model's
     time constant, and a scale error that persists over the second; the pose covariance
     accumulated step by step must carry both, at 15 and at 30 Hz."""
-    from planar_vo import odometry
+    from planar_vo.core import odometry
     rng = np.random.default_rng(7)
     tau, sigma = odometry._ERROR_CORRELATION_S, 1e-3
     for rate in (15.0, 30.0):

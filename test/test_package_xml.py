@@ -5,7 +5,7 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ET
 
-from planar_vo import resources
+from planar_vo.io import resources
 
 ROOT = resources.share_dir()
 
@@ -39,7 +39,7 @@ def _imports(paths):
 
 
 def test_every_import_is_a_declared_run_dependency():
-    code = [*(ROOT / 'planar_vo').glob('*.py'), *(ROOT / 'launch').glob('*.py')]
+    code = [*(ROOT / 'planar_vo').rglob('*.py'), *(ROOT / 'launch').glob('*.py')]
     needed = {KEY_OF_IMPORT.get(name, name) for name in _imports(code)}
     assert needed - {'setuptools'} <= _depends('exec_depend', 'depend'), needed
 
@@ -52,7 +52,7 @@ def test_every_key_resolves_with_rosdep_on_noble_jazzy():
 
 def test_the_node_needs_no_bag_library():
     """python3-rosbags-pip (a pip key, PEP 668 on Noble) is only for the offline tools."""
-    code = ('import sys, planar_vo.node\n'
+    code = ('import sys, planar_vo.ros.node\n'
             'print(sorted(m for m in sys.modules if m.split(".")[0] in ("rosbags", '
             '"matplotlib")))\n')
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,

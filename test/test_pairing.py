@@ -1,6 +1,6 @@
 """Image/CameraInfo pairing by stamp, in every arrival order (no ROS)."""
 
-from planar_vo.pairing import Pairing
+from planar_vo.ros.pairing import Pairing
 
 
 def _pairs(ready):

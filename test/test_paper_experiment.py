@@ -4,8 +4,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from planar_vo import paper_experiment as pe
-from planar_vo import resources
+from planar_vo.io import resources
+from planar_vo.tools.experiments import paper_experiment as pe
 
 SCRIPT = resources.executable('planar_vo_paper_experiment')
 

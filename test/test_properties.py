@@ -14,11 +14,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from planar_vo import messages, resources
-from planar_vo.camera import MAX_IMAGE_SIDE, CameraModel, CameraModelError
-from planar_vo.config import load_params_file
-from planar_vo.messages import SUPPORTED_ENCODINGS, ImageError
-from planar_vo.odometry import VisualOdometry
+from planar_vo.core.config import load_params_file
+from planar_vo.core.geometry.camera import MAX_IMAGE_SIDE, CameraModel, CameraModelError
+from planar_vo.core.odometry import VisualOdometry
+from planar_vo.io import resources
+from planar_vo.ros import messages
+from planar_vo.ros.messages import SUPPORTED_ENCODINGS, ImageError
 
 ROOT = resources.share_dir()
 # The message and lens properties take about a millisecond per example: give them more.
@@ -165,7 +166,7 @@ class Frames:
     """The first frames of bags/default with their camera and true planar poses."""
 
     def __init__(self, count=8):
-        from planar_vo.bag import open_reader
+        from planar_vo.io.bag import open_reader
         images, self.truth, self.camera = [], {}, None
         with open_reader(ROOT / 'bags' / 'default') as reader:
             for conn, _, raw in reader.messages():

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from planar_vo.ransac import (
+from planar_vo.core.estimation.ransac import (
     PoseEstimationError,
     TransferModel,
     circular_motion,
@@ -173,9 +173,9 @@ def test_points_behind_the_camera_never_count_as_inliers(car_camera):
 
 
 def test_pipeline_hypotheses_are_the_papers_1point_solver_on_the_axle_camera():
-    from planar_vo.camera import level_to_base
-    from planar_vo.ransac import _hypotheses_1point
-    from planar_vo.solvers import homography_1point, paper_to_planar
+    from planar_vo.core.estimation.ransac import _hypotheses_1point
+    from planar_vo.core.geometry.camera import level_to_base
+    from planar_vo.core.geometry.solvers import homography_1point, paper_to_planar
 
     rng = np.random.default_rng(9)
     p1 = np.c_[rng.uniform(2, 10, 50), rng.uniform(-3, 3, 50)]

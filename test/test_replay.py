@@ -6,9 +6,10 @@ import subprocess
 import numpy as np
 import pytest
 
-from planar_vo import config, resources
-from planar_vo.bag import open_reader
-from planar_vo.replay import main, replay, report
+from planar_vo.core import config
+from planar_vo.io import resources
+from planar_vo.io.bag import open_reader
+from planar_vo.tools.replay import main, replay, report
 
 ROOT = resources.share_dir()
 BAG = resources.default_bag()
@@ -110,7 +111,7 @@ def test_bad_input_is_one_clear_line(capsys, args, message):
 
 
 def test_bag_without_images_or_camera_info(tmp_path, capsys):
-    from planar_vo.bag import BagWriter, typestore
+    from planar_vo.io.bag import BagWriter, typestore
 
     types = typestore().types
     only_truth = tmp_path / 'truth_only'
@@ -136,7 +137,7 @@ def test_corrupt_bag_is_a_clear_error(tmp_path, capsys):
 def test_an_error_while_processing_is_not_called_a_corrupt_bag(monkeypatch, capsys):
     """A fault injected into the odometry (a bug, not the bag's): reported as such, the rest
     of the bag is replayed, exit status 0."""
-    from planar_vo.odometry import VisualOdometry
+    from planar_vo.core.odometry import VisualOdometry
     real, calls = VisualOdometry._process, []
 
     def fails_at_the_fifth_frame(self, gray, stamp):

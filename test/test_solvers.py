@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from planar_vo import solvers
+from planar_vo.core.geometry import solvers
 from test.conftest import paper_motion_rays
 
 CASES = 200

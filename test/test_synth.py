@@ -8,9 +8,10 @@ import sys
 import numpy as np
 import pytest
 
-from planar_vo import resources, synth
-from planar_vo.bag import BagError, open_reader
-from planar_vo.camera import Mounting
+from planar_vo import synth
+from planar_vo.core.geometry.camera import Mounting
+from planar_vo.io import resources
+from planar_vo.io.bag import BagError, open_reader
 from test.conftest import synth_camera_model
 
 SYNTH = resources.executable('planar_vo_synth')
@@ -120,7 +121,7 @@ def test_a_supersampled_pixel_is_the_area_mean_of_a_finer_camera(scenario):
 def test_supersampled_frames_make_the_odometry_more_accurate():
     """Point-sampled, KLT follows the texture's aliasing too: the rigid model's t_rel on
     `straight` is 0.032 % one ray per pixel, 0.021 % with 2 x 2 (the renderer's truth)."""
-    from planar_vo import evaluate
+    from planar_vo.core import evaluate
     from test.conftest import run_scenario
     results, truth = run_scenario('straight', 150, supersample=2)
     m = evaluate.metrics(np.array([r.pose for r in results]), truth)
@@ -617,7 +618,7 @@ def test_sidecar_shows_the_configured_mounting_while_images_use_the_true_one(tmp
 
 
 def test_run_scenario_configures_the_odometry_with_the_configured_mounting(monkeypatch):
-    from planar_vo import odometry
+    from planar_vo.core import odometry
     from test.conftest import run_scenario
     seen = []
     original = odometry.VisualOdometry.from_params
@@ -682,9 +683,10 @@ def test_cli_mounting_error_and_exposure_errors_are_one_line(tmp_path, args, mes
 def test_pipeline_agrees_with_the_renderer_on_a_rolled_and_yawed_camera():
     """The car scenario's mount (roll 0.5 deg, yaw -0.7 deg) on a rigid body: the odometry,
     configured with it, tracks as well as on level mounts. A roll or yaw composed differently
-    by the renderer and by planar_vo.camera would show as drift: 1 deg of roll error gives
+    by the renderer and by planar_vo.core.geometry.camera would show as drift: 1 deg of roll error
+    gives
     about 45 deg/100 m here. The rigid model, so that attitude tracking cannot absorb it."""
-    from planar_vo import evaluate
+    from planar_vo.core import evaluate
     from test.conftest import run_scenario
     results, truth = run_scenario('car', 90, suspension=synth.RIGID,
                                   overrides={'estimate_attitude': False})

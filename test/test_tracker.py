@@ -1,7 +1,7 @@
 import cv2
 import numpy as np
 
-from planar_vo.tracker import Tracker
+from planar_vo.core.frontend.tracker import Tracker
 
 
 def texture(seed=0, size=(480, 640)):

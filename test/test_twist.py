@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from planar_vo.odometry import VisualOdometry
-from planar_vo.twist import TwistAtStamp, mean_twist, twist_motion
+from planar_vo.core.estimation.twist import TwistAtStamp, mean_twist, twist_motion
+from planar_vo.core.odometry import VisualOdometry
 
 
 def arc(v, rate, dt):

@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from planar_vo.camera import CameraModel, Mounting
-from planar_vo.ransac import TransferModel
-from planar_vo.warp import GroundWarp
+from planar_vo.core.estimation.ransac import TransferModel
+from planar_vo.core.frontend.warp import GroundWarp
+from planar_vo.core.geometry.camera import CameraModel, Mounting
 from test.conftest import move_points, observe
 
 MOUNTING = Mounting(x=1.2, y=0.1, height=1.25, pitch=np.radians(8.0), roll=0.01, yaw=0.02)
@@ -13,7 +13,7 @@ CAMERA = CameraModel(np.array([[460.0, 0, 320.0], [0, 460.0, 240.0], [0, 0, 1]])
 
 
 def _bilinear(grid, pixels):
-    from planar_vo.tracker import _bilinear
+    from planar_vo.core.frontend.tracker import _bilinear
     return _bilinear(grid, pixels.astype(np.float32))
 
 

@@ -10,11 +10,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from planar_vo.progress import Progress
 from planar_vo.synth.lens import SynthCamera
 from planar_vo.synth.mount import CameraMount, MountingError, params_yaml
 from planar_vo.synth.scenarios import SCENARIOS, render_scenario
 from planar_vo.synth.vehicle import RIGID, Suspension, Trajectory
+from planar_vo.tools.progress import Progress
 
 EPOCH_NS = 1_700_000_000 * 1_000_000_000
 IMAGE_TOPIC = '/camera/image_raw'
@@ -116,7 +116,7 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
     it plus ``configured_error`` (the mounting a user would have configured, to test
     calibration).
     """
-    from planar_vo.bag import BagWriter, typestore
+    from planar_vo.io.bag import BagWriter, typestore
 
     t0 = time.monotonic()
     camera = camera or SynthCamera()

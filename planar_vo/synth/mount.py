@@ -1,6 +1,7 @@
 """The synthetic camera's mounting, composed on its own (axis-angle rotations).
 
-Never built with ``planar_vo.camera``: the renderer must not share the code it tests, or a
+Never built with ``planar_vo.core.geometry.camera``: the renderer must not share the code it
+tests, or a
 wrong roll/pitch/yaw composition there would cancel out. The convention is DESIGN.md
 section 2: the camera body frame (x forward, y left, z up) in base_link, rotated by
 ``Rz(yaw) Ry(pitch) Rx(roll)``; positive pitch looks down.
@@ -24,7 +25,7 @@ def axis_rotation(axis: str, angle: float) -> np.ndarray:
     """Rotation by ``angle`` (rad, right-hand rule) about base axis ``'x'``, ``'y'`` or ``'z'``.
 
     Built from the axis-angle vector with OpenCV's Rodrigues formula: the renderer's own path,
-    independent of ``planar_vo.camera``.
+    independent of ``planar_vo.core.geometry.camera``.
     """
     rvec = np.zeros((3, 1))
     rvec['xyz'.index(axis), 0] = angle
@@ -47,7 +48,8 @@ def rpy_of(rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 class CameraMount:
     """Where the camera sits on the vehicle: camera body frame in base_link (m and rad).
 
-    Plain numbers; anything with these six attributes (e.g. ``planar_vo.camera.Mounting``)
+    Plain numbers; anything with these six attributes (e.g.
+    ``planar_vo.core.geometry.camera.Mounting``)
     converts with :meth:`of`.
     """
 

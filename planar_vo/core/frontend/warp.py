@@ -15,8 +15,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from planar_vo.camera import CameraModel, rays_through
-from planar_vo.ransac import TransferModel, inverse_motion
+from planar_vo.core.estimation.ransac import TransferModel, inverse_motion
+from planar_vo.core.geometry.camera import CameraModel, rays_through
 
 __all__ = ['GroundWarp']
 

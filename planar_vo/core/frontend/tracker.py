@@ -100,7 +100,8 @@ class Tracker:
                 skipped frames stay within its reach. Without it KLT uses ``levels``, and
                 so do the tracks a prediction loses when it loses most of them (a jolt the
                 motion did not foresee).
-            warp: with ``predicted``, the (H, W, 2) map of :class:`planar_vo.warp.GroundWarp`
+            warp: with ``predicted``, the (H, W, 2) map of
+            :class:`planar_vo.core.frontend.warp.GroundWarp`
                 for the same motion: KLT then matches the last image warped by it, so its
                 windows no longer deform. A track's position in the last image becomes where
                 the warp takes it from (within a pixel of where it was): use it only when the

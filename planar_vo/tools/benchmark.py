@@ -6,7 +6,8 @@ Prints ratios, never absolute pass/fail timings (machines are shared and noisy):
   correspondences of every frame of the bag;
 - a whole offline frame (bag decode included) vs the time its tracker takes (KLT from the
   predicted positions, and detection), and
-  vs the plain OpenCV pipeline (:class:`planar_vo.baselines.OpenCVReference`, decode-free);
+  vs the plain OpenCV pipeline (:class:`planar_vo.core.estimation.baselines.OpenCVReference`,
+  decode-free);
 - with ``--live``, the node's median latency over DDS vs its own median compute on the same
   frames (as its /diagnostics report it), and the highest frame rate it keeps up with;
 - the accuracy of the run (planar_vo and the reference), so a speed gain that costs
@@ -24,13 +25,22 @@ from typing import Any
 
 import numpy as np
 
-from planar_vo import evaluate
-from planar_vo.bag import BagError, open_reader, typestore
-from planar_vo.baselines import OpenCVReference, essential_motion, homography_motion
-from planar_vo.camera import rays_through
-from planar_vo.config import ConfigError, defaults, load_params_file
-from planar_vo.health import RECENT_FRAMES
-from planar_vo.messages import (
+from planar_vo.core import evaluate
+from planar_vo.core.config import ConfigError, defaults, load_params_file
+from planar_vo.core.estimation.baselines import (
+    OpenCVReference,
+    essential_motion,
+    homography_motion,
+)
+from planar_vo.core.estimation.ransac import PoseEstimationError, TransferModel, estimate_motion
+from planar_vo.core.frontend.motion_search import GroundMotionSearch
+from planar_vo.core.frontend.tracker import Tracker
+from planar_vo.core.geometry.camera import rays_through
+from planar_vo.core.odometry import VisualOdometry, compose
+from planar_vo.io.bag import BagError, open_reader, typestore
+from planar_vo.io.resources import default_bag, default_params
+from planar_vo.ros.health import RECENT_FRAMES
+from planar_vo.ros.messages import (
     ImageError,
     camera_info_to_model,
     compressed_to_gray,
@@ -38,12 +48,7 @@ from planar_vo.messages import (
     planar_pose,
     stamp_to_seconds,
 )
-from planar_vo.motion_search import GroundMotionSearch
-from planar_vo.odometry import VisualOdometry, compose
-from planar_vo.progress import Progress
-from planar_vo.ransac import PoseEstimationError, TransferModel, estimate_motion
-from planar_vo.resources import default_bag, default_params
-from planar_vo.tracker import Tracker
+from planar_vo.tools.progress import Progress
 
 __all__ = ['main', 'run_benchmark']
 
@@ -250,7 +255,7 @@ def run_live_benchmark(bag: Path, params_file: Path, *, frames: int = 150,
     """
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from planar_vo.live import BagStream, LiveSession
+    from planar_vo.tools.live_session import BagStream, LiveSession
 
     stream = BagStream.read(bag, limit=frames)
     session = LiveSession(params_file, image_type=stream.image_type)
@@ -392,7 +397,7 @@ def main(argv: list[str] | None = None) -> int:
         result = run_benchmark(bag, params, frames=args.frames,
                                progress=sys.stderr.isatty())
         if args.live:
-            from planar_vo.live import LiveError
+            from planar_vo.tools.live_session import LiveError
             try:
                 live = run_live_benchmark(
                     bag, Path(args.node_params) if args.node_params else default_params())

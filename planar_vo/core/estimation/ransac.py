@@ -1,7 +1,8 @@
 """Robust planar motion from ground correspondences: 1-point RANSAC and refinement.
 
 Hypotheses come from the paper's circular-motion homography solver (eq. 16) applied to a
-virtual level camera on the rear axle (see :func:`planar_vo.camera.level_to_base`): the
+virtual level camera on the rear axle (see :func:`planar_vo.core.geometry.camera.level_to_base`):
+the
 circular constraint holds at the axle, not at a camera mounted ahead of it. Hypotheses
 are scored by their transfer error in the *real* image, in pixels, on all correspondences
 at once, then refined in 3 DoF by Gauss-Newton on the inliers.
@@ -17,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planar_vo.camera import CameraModel, Mounting, level_to_base
-from planar_vo.solvers import homography_npoint, paper_to_planar
+from planar_vo.core.geometry.camera import CameraModel, Mounting, level_to_base
+from planar_vo.core.geometry.solvers import homography_npoint, paper_to_planar
 
 __all__ = ['TransferModel', 'RansacResult', 'PoseEstimationError', 'estimate_motion',
            'refine_motion', 'motion_covariance', 'transfer_errors', 'circular_motion']
@@ -333,7 +334,8 @@ def _circular_jacobian(rho: float, yaw: float) -> np.ndarray:
 def _hypotheses_1point(p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
     """One circular motion of the axle per correspondence, (N, 3).
 
-    This is paper eq. 16 (:func:`planar_vo.solvers.homography_1point`) for the virtual
+    This is paper eq. 16 (:func:`planar_vo.core.geometry.solvers.homography_1point`) for the
+    virtual
     level camera on the axle, whose rays are ``[-y, h, x]``: it reduces to
     ``tan(yaw / 2) = (y1 - y2) / (x1 + x2)`` and ``rho = c (x1 - x2) + s (y1 + y2)`` with
     ``(c, s)`` of ``yaw / 2``, where ``rho < 0`` is driving backwards. Written out because

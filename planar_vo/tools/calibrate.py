@@ -1,6 +1,7 @@
 """``planar_vo_calibrate``: the camera mounting from a recorded drive.
 
-Runs the odometry over the bag with self-calibration on (see :mod:`planar_vo.calibration`),
+Runs the odometry over the bag with self-calibration on (see
+:mod:`planar_vo.core.estimation.calibration`),
 then writes the parameter file back with the learned ``camera_pitch``, ``camera_roll``,
 ``camera_yaw`` and ``camera_x``. With ``--known-distance`` (the drive's true length) a second
 pass, from the calibrated mounting, measures the path and scales ``camera_height`` to it:
@@ -19,9 +20,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from planar_vo.bag import BagError
-from planar_vo.calibration import MountingEstimate
-from planar_vo.config import (
+from planar_vo.core.config import (
     NODE_NAME,
     ConfigError,
     load_params_file,
@@ -29,7 +28,9 @@ from planar_vo.config import (
     read_params_yaml,
     validate,
 )
-from planar_vo.replay import ReplayError, replay
+from planar_vo.core.estimation.calibration import MountingEstimate
+from planar_vo.io.bag import BagError
+from planar_vo.tools.replay import ReplayError, replay
 
 __all__ = ['main', 'calibrate']
 

@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planar_vo.attitude import tilted_mounting
-from planar_vo.camera import Mounting
+from planar_vo.core.estimation.attitude import tilted_mounting
+from planar_vo.core.geometry.camera import Mounting
 
 __all__ = ['MountingCalibrator', 'MountingEstimate', 'mounting_advice', 'calibrated_params']
 

@@ -13,9 +13,9 @@ import sys
 import time
 from pathlib import Path
 
-from planar_vo.bag import BagError
-from planar_vo.live import BagStream, LiveError, LiveSession
-from planar_vo.resources import ResourceError, default_bag, default_params
+from planar_vo.io.bag import BagError
+from planar_vo.io.resources import ResourceError, default_bag, default_params
+from planar_vo.tools.live_session import BagStream, LiveError, LiveSession
 
 __all__ = ['main']
 

@@ -1,6 +1,6 @@
 """``planar_vo_replay``: the odometry pipeline run offline over a rosbag2 bag (no DDS).
 
-Reads images and CameraInfo with ``rosbags``, runs :class:`planar_vo.odometry.VisualOdometry`
+Reads images and CameraInfo with ``rosbags``, runs :class:`planar_vo.core.odometry.VisualOdometry`
 with the node's parameter file, writes ``/odom`` (nav_msgs/Odometry) to a new bag, and
 scores the trajectory when the bag has ground truth.
 """
@@ -17,12 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from planar_vo import evaluate
-from planar_vo.bag import BagError, BagWriter, open_reader
-from planar_vo.calibration import MountingEstimate
-from planar_vo.camera import CameraModelError
-from planar_vo.config import ConfigError, defaults, load_params_file
-from planar_vo.messages import (
+from planar_vo.core import evaluate
+from planar_vo.core.config import ConfigError, defaults, load_params_file
+from planar_vo.core.estimation.calibration import MountingEstimate
+from planar_vo.core.geometry.camera import CameraModelError
+from planar_vo.core.odometry import FrameResult, VisualOdometry
+from planar_vo.io.bag import BagError, BagWriter, open_reader
+from planar_vo.ros.messages import (
     ImageError,
     camera_info_to_model,
     compressed_to_gray,
@@ -31,9 +32,8 @@ from planar_vo.messages import (
     planar_pose,
     stamp_to_seconds,
 )
-from planar_vo.odometry import FrameResult, VisualOdometry
-from planar_vo.pairing import Paired, Pairing
-from planar_vo.progress import Progress
+from planar_vo.ros.pairing import Paired, Pairing
+from planar_vo.tools.progress import Progress
 
 __all__ = ['main', 'replay', 'ReplayError', 'Trajectory']
 

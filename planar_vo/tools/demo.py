@@ -15,13 +15,13 @@ from typing import Any
 
 import numpy as np
 
-from planar_vo import evaluate
-from planar_vo.bag import BagError
-from planar_vo.config import ConfigError, load_params_file
-from planar_vo.live import BagStream, LiveError, LiveSession
-from planar_vo.messages import planar_pose
-from planar_vo.replay import replay
-from planar_vo.resources import default_bag, default_params
+from planar_vo.core import evaluate
+from planar_vo.core.config import ConfigError, load_params_file
+from planar_vo.io.bag import BagError
+from planar_vo.io.resources import default_bag, default_params
+from planar_vo.ros.messages import planar_pose
+from planar_vo.tools.live_session import BagStream, LiveError, LiveSession
+from planar_vo.tools.replay import replay
 
 __all__ = ['main', 'run_demo']
 

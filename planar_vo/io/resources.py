@@ -20,7 +20,7 @@ __all__ = ['PACKAGE', 'ResourceError', 'share_dir', 'default_params', 'default_b
            'launch_file', 'executable', 'from_source_tree', 'installed_prefix']
 
 PACKAGE = 'planar_vo'
-_SOURCE_ROOT = Path(__file__).resolve().parent.parent
+_SOURCE_ROOT = Path(__file__).resolve().parents[2]
 
 
 class ResourceError(FileNotFoundError):

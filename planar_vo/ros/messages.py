@@ -22,7 +22,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from planar_vo.camera import MAX_IMAGE_SIDE, CameraModel, CameraModelError
+from planar_vo.core.geometry.camera import MAX_IMAGE_SIDE, CameraModel, CameraModelError
 
 __all__ = ['ImageError', 'UNOBSERVED_VARIANCE', 'SUPPORTED_ENCODINGS', 'image_to_gray',
            'compressed_to_gray', 'camera_info_to_model', 'stamp_to_seconds', 'covariance_6x6',

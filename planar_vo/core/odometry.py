@@ -15,28 +15,20 @@ from typing import Any
 import cv2
 import numpy as np
 
-from planar_vo.attitude import (
+from planar_vo.core.estimation.attitude import (
     AttitudePrior,
     HeightWalk,
     refine_with_attitude,
     tilted_mounting,
 )
-from planar_vo.baselines import homography_motion
-from planar_vo.calibration import (
+from planar_vo.core.estimation.baselines import homography_motion
+from planar_vo.core.estimation.calibration import (
     MountingCalibrator,
     MountingEstimate,
     calibrated_params,
     mounting_advice,
 )
-from planar_vo.camera import (
-    MAX_ROUND_TRIP_PX,
-    CameraModel,
-    CameraModelError,
-    Mounting,
-    rays_through,
-)
-from planar_vo.motion_search import GroundMotionSearch
-from planar_vo.ransac import (
+from planar_vo.core.estimation.ransac import (
     PoseEstimationError,
     RansacResult,
     TransferModel,
@@ -44,9 +36,17 @@ from planar_vo.ransac import (
     refine_motion,
     transfer_errors,
 )
-from planar_vo.tracker import Tracker
-from planar_vo.twist import TwistAtStamp, twist_motion
-from planar_vo.warp import GroundWarp
+from planar_vo.core.estimation.twist import TwistAtStamp, twist_motion
+from planar_vo.core.frontend.motion_search import GroundMotionSearch
+from planar_vo.core.frontend.tracker import Tracker
+from planar_vo.core.frontend.warp import GroundWarp
+from planar_vo.core.geometry.camera import (
+    MAX_ROUND_TRIP_PX,
+    CameraModel,
+    CameraModelError,
+    Mounting,
+    rays_through,
+)
 
 __all__ = ['VisualOdometry', 'FrameResult', 'compose', 'ground_mask']
 
@@ -212,8 +212,8 @@ class VisualOdometry:
         # Camera position minus the body's tilt pivot, base_link: the camera swings with it.
         self.pivot_arm = np.zeros(3) if attitude is None else attitude.pivot_arm
         self.self_calibrate = self_calibrate and attitude is not None
-        self.klt_prewarp = klt_prewarp  # see planar_vo.warp
-        self.klt_first_search = klt_first_search  # see planar_vo.motion_search
+        self.klt_prewarp = klt_prewarp  # see planar_vo.core.frontend.warp
+        self.klt_first_search = klt_first_search  # see planar_vo.core.frontend.motion_search
         self.configured_mounting = mounting
         self.calibrator = MountingCalibrator(mounting)
         self._update_geometry(camera, mounting, check_round_trip=True)
@@ -221,7 +221,7 @@ class VisualOdometry:
 
     @classmethod
     def from_params(cls, camera: CameraModel, params: dict[str, Any]) -> VisualOdometry:
-        """Build from the parameter schema's values (see :mod:`planar_vo.config`)."""
+        """Build from the parameter schema's values (see :mod:`planar_vo.core.config`)."""
         tracker = Tracker(
             max_features=params['max_features'], quality_level=params['quality_level'],
             min_distance=params['min_distance'], window=params['klt_window'],

@@ -14,8 +14,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from planar_vo.camera import CameraModel, Mounting
-from planar_vo.ransac import PoseEstimationError
+from planar_vo.core.estimation.ransac import PoseEstimationError
+from planar_vo.core.geometry.camera import CameraModel, Mounting
 
 __all__ = ['homography_motion', 'essential_motion', 'OpenCVReference']
 

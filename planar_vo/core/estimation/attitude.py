@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planar_vo.camera import BODY_FROM_OPTICAL, Mounting
-from planar_vo.ransac import PoseEstimationError
+from planar_vo.core.estimation.ransac import PoseEstimationError
+from planar_vo.core.geometry.camera import BODY_FROM_OPTICAL, Mounting
 
 __all__ = ['AttitudePrior', 'HeightWalk', 'JointResult', 'body_tilt', 'tilted_mounting',
            'refine_with_attitude', 'transfer_residuals']
@@ -90,7 +90,7 @@ class JointResult:
     rms_px: float
     # What the image pair alone says of the attitude's change (roll, pitch, dh) from frame 1
     # to 2, without the priors, and its covariance: the innovation that tells how fast the
-    # body really moves (see :meth:`planar_vo.odometry.VisualOdometry._learn_attitude_rate`).
+    # body really moves (see :meth:`planar_vo.core.odometry.VisualOdometry._learn_attitude_rate`).
     change: np.ndarray = field(default_factory=lambda: np.zeros(3))
     change_cov: np.ndarray = field(default_factory=lambda: np.eye(3))
 
@@ -191,7 +191,8 @@ def refine_with_attitude(
     """Gauss-Newton over (motion, attitude 1, attitude 2) with the attitude priors.
 
     Inliers are chosen again at every step until the set settles, as in
-    :func:`planar_vo.ransac.refine_motion`; the pixel noise that weighs the data against the
+    :func:`planar_vo.core.estimation.ransac.refine_motion`; the pixel noise that weighs the data
+    against the
     priors is estimated from the inliers' residuals at every step too. The threshold starts
     at ``start_threshold_px`` and halves every step down to ``threshold_px``: a tilt that
     changed by more than the pixel noise between the frames (a jolt) moves every point off

@@ -6,7 +6,7 @@ ground points seen in both images, adds Gaussian pixel noise to both, and gives 
 correspondences to every solver:
 
 - the paper's four: reduced essential matrix 1-point and 2-point, reduced ground
-  homography 1-point and 2-point (:mod:`planar_vo.solvers`);
+  homography 1-point and 2-point (:mod:`planar_vo.core.geometry.solvers`);
 - what the paper leaves as future work: the 6-DoF baselines of OpenCV, five-point essential
   matrix (``findEssentialMat`` + ``recoverPose``) and four-point homography
   (``findHomography`` + ``decomposeHomographyMat``), on minimal sets and on 50 points, and
@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from planar_vo.solvers import (
+from planar_vo.core.geometry.solvers import (
     essential_1point,
     essential_2point,
     essential_select,

@@ -1,14 +1,14 @@
-"""``planar_vo_node``: the rclpy adapter around :class:`planar_vo.odometry.VisualOdometry`.
+"""``planar_vo_node``: the rclpy adapter around :class:`planar_vo.core.odometry.VisualOdometry`.
 
 Subscribes ``image`` (or ``<image>/compressed``) and ``camera_info``, paired by stamp
-(:mod:`planar_vo.pairing`), and ``set_pose`` (geometry_msgs/PoseWithCovarianceStamped, as
+(:mod:`planar_vo.ros.pairing`), and ``set_pose`` (geometry_msgs/PoseWithCovarianceStamped, as
 robot_localization): odometry continues from that pose. Publishes ``odom`` for every image
 (stamp = image stamp; when a frame gives no estimate the held pose is published with an
 inflated covariance; a repeated stamp publishes nothing), optional ``~/path`` and
-``~/debug_image``, ``/diagnostics`` about once a second (:mod:`planar_vo.health`) and
+``~/debug_image``, ``/diagnostics`` about once a second (:mod:`planar_vo.ros.health`) and
 odom → base_link on /tf when tf2_ros is installed. Service ``~/reset`` restarts at the origin.
 
-Parameters come from :data:`planar_vo.config.SCHEMA`. An invalid start-up value (command
+Parameters come from :data:`planar_vo.core.config.SCHEMA`. An invalid start-up value (command
 line or params file) is a one-line error and exit status 2; at run time invalid values are
 refused with a reason. Mounting changes apply at once; other algorithm parameters rebuild
 the odometry (tracking restarts, the pose is kept).
@@ -42,11 +42,12 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_srvs.srv import Trigger
 
-from planar_vo import config, messages
-from planar_vo.camera import CameraModelError
-from planar_vo.health import Health
-from planar_vo.odometry import VisualOdometry, mounting_from_params
-from planar_vo.pairing import Pairing
+from planar_vo.core import config
+from planar_vo.core.geometry.camera import CameraModelError
+from planar_vo.core.odometry import VisualOdometry, mounting_from_params
+from planar_vo.ros import messages
+from planar_vo.ros.health import Health
+from planar_vo.ros.pairing import Pairing
 
 _PARAMS = {p.name: p for p in config.SCHEMA}
 _OUTPUT_PARAMS = {'odom_frame', 'base_frame', 'publish_tf', 'publish_path', 'path_max_poses',

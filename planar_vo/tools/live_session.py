@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from planar_vo.bag import BagError, open_reader
-from planar_vo.messages import planar_pose, stamp_to_seconds
-from planar_vo.replay import IMAGE_TYPES
-from planar_vo.resources import executable
+from planar_vo.io.bag import BagError, open_reader
+from planar_vo.io.resources import executable
+from planar_vo.ros.messages import planar_pose, stamp_to_seconds
+from planar_vo.tools.replay import IMAGE_TYPES
 
 __all__ = ['BagStream', 'LiveSession', 'LiveError', 'local_dds_env']
 
