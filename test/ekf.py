@@ -6,8 +6,7 @@ walk driven by white acceleration noise; measurements are body twists with a cov
 
 import numpy as np
 
-from planar_vo.core.estimation.twist import twist_motion
-from planar_vo.core.odometry import compose
+from planar_vo.core.geometry.se2 import compose, twist_motion
 
 
 class PlanarEkf:

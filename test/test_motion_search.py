@@ -7,9 +7,10 @@ import pytest
 
 from planar_vo import synth
 from planar_vo.core import config
+from planar_vo.core.config import mounting_from_params
 from planar_vo.core.estimation.ransac import TransferModel
 from planar_vo.core.frontend.motion_search import GroundMotionSearch
-from planar_vo.core.odometry import VisualOdometry, mounting_from_params
+from planar_vo.core.odometry import VisualOdometry
 from test.conftest import synth_camera_model
 
 

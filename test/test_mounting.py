@@ -222,13 +222,14 @@ def test_a_frame_rejected_for_too_few_inliers_teaches_the_attitude_nothing(sprun
                               'camera_yaw': m.yaw, 'estimate_attitude': True,
                               'min_inliers': 1000})
     vo = VisualOdometry.from_params(synth_camera_model(renderer), params)
-    start = (vo.attitude.copy(), vo._rate2.copy(), vo.mounting_estimate().seconds)
+    att = vo.attitude_filter
+    start = (att.attitude.copy(), att.rate2.copy(), vo.mounting_estimate().seconds)
     statuses = {vo.process(image, k / 30.0).status for k, image in enumerate(images[:6])}
     assert statuses == {'first', 'reinitialized'}, statuses  # refined, then rejected
-    assert np.array_equal(vo.attitude, start[0])
-    assert np.array_equal(vo._rate2, start[1])
+    assert np.array_equal(vo.attitude_filter.attitude, start[0])
+    assert np.array_equal(vo.attitude_filter.rate2, start[1])
     assert vo.mounting_estimate().seconds == start[2] == 0.0
-    assert vo._height.samples == 0 and vo._height.walk == 0
+    assert vo.attitude_filter.height.samples == 0 and vo.attitude_filter.height.walk == 0
 
 
 def test_a_rough_road_at_20_hz_keeps_tracking_through_its_jolts():

@@ -5,7 +5,8 @@ import pytest
 
 from planar_vo.core import config, evaluate
 from planar_vo.core.geometry.camera import CameraModel, Mounting
-from planar_vo.core.odometry import VisualOdometry, compose
+from planar_vo.core.geometry.se2 import compose
+from planar_vo.core.odometry import VisualOdometry
 from test.conftest import drive, run_scenario
 
 
@@ -152,12 +153,12 @@ def test_an_exception_inside_process_leaves_the_state_as_it_was():
     vo = VisualOdometry.from_params(frames.camera, PARAMS)
     for k in range(3):
         vo.process(frames.images[k], frames.stamps[k])
-    before = (vo.pose.copy(), vo.tracker.points.copy(), vo._last_stamp, dict(vo.counters))
+    before = (vo.pose.copy(), vo.tracker.points.copy(), vo.gate.last_stamp, dict(vo.counters))
     with pytest.raises(cv2.error):
         vo.process(frames.images[3].astype(np.float64), frames.stamps[3])
     np.testing.assert_array_equal(vo.pose, before[0])
     np.testing.assert_array_equal(vo.tracker.points, before[1])
-    assert vo._last_stamp == before[2] and vo.counters == before[3]
+    assert vo.gate.last_stamp == before[2] and vo.counters == before[3]
     # ... so the next frames go on as if the bad one had never come.
     assert [vo.process(frames.images[k], frames.stamps[k]).status for k in (3, 4, 5)] == [
         'ok', 'ok', 'ok']
@@ -270,9 +271,17 @@ def test_constructor_defaults_are_the_parameter_schemas():
               'camera_roll': 0.0, 'camera_pitch': np.radians(8.0), 'camera_yaw': 0.0}
     schema = VisualOdometry.from_params(camera, params)
     for name in ('horizon_margin', 'ransac_method', 'inlier_threshold', 'ransac_confidence',
-                 'circular_refine', 'min_inliers', 'max_frame_gap', 'klt_prewarp',
-                 'klt_first_search', 'attitude_noise', 'self_calibrate'):
+                 'circular_refine', 'min_inliers'):
         assert getattr(direct, name) == getattr(schema, name), name
+    assert direct.gate.max_frame_gap == schema.gate.max_frame_gap
+    for name in ('klt_prewarp', 'klt_first_search'):
+        assert getattr(direct.front, name) == getattr(schema.front, name), name
+    attitudes = (direct.attitude_filter, schema.attitude_filter)
+    assert (attitudes[0] is None) == (attitudes[1] is None)
+    if attitudes[0] is not None:
+        assert attitudes[0].self_calibrate == attitudes[1].self_calibrate
+        for name in ('tilt_sigma', 'tilt_rate', 'height_sigma', 'height_rate'):
+            assert getattr(attitudes[0].noise, name) == getattr(attitudes[1].noise, name)
     for name in ('max_features', 'quality_level', 'min_distance', 'window', 'levels',
                  'fb_threshold'):
         assert getattr(direct.tracker, name) == getattr(schema.tracker, name), name
@@ -282,9 +291,9 @@ def test_pose_covariance_holds_correlated_step_errors_and_a_persistent_scale_err
     """Against simulation: steps whose errors are exponentially correlated over the model's
     time constant, and a scale error that persists over the second; the pose covariance
     accumulated step by step must carry both, at 15 and at 30 Hz."""
-    from planar_vo.core import odometry
+    from planar_vo.core.odometry import covariance
     rng = np.random.default_rng(7)
-    tau, sigma = odometry._ERROR_CORRELATION_S, 1e-3
+    tau, sigma = covariance.ERROR_CORRELATION_S, 1e-3
     for rate in (15.0, 30.0):
         dt, steps = 1.0 / rate, int(10 * rate)
         rho = np.exp(-dt / tau)
@@ -296,14 +305,14 @@ def test_pose_covariance_holds_correlated_step_errors_and_a_persistent_scale_err
         simulated = errors.sum(axis=1).var()
         pose, cov = np.zeros(3), np.zeros((3, 3))
         for _ in range(steps):  # no motion: only the correlated part
-            pose, cov = compose(pose, cov, np.zeros(3), odometry._shared_error_covariance(
+            pose, cov = compose(pose, cov, np.zeros(3), covariance.shared_error_covariance(
                 np.zeros(3), np.diag([sigma ** 2, 0.0, 0.0]), dt))
         assert 0.9 < cov[0, 0] / simulated < 1.1, (rate, cov[0, 0], simulated)
         # A scale error s held over 1 s at 5 m/s moves the pose by s * 5 m along the track.
-        speed, scale = 5.0, rng.normal(0.0, odometry._SHARED_SCALE_ERROR, 4000)
+        speed, scale = 5.0, rng.normal(0.0, covariance.SHARED_SCALE_ERROR, 4000)
         pose, cov = np.zeros(3), np.zeros((3, 3))
         for _ in range(int(rate)):
             pose, cov = compose(pose, cov, np.array([speed * dt, 0.0, 0.0]),
-                                odometry._shared_error_covariance(
+                                covariance.shared_error_covariance(
                                     np.array([speed * dt, 0.0, 0.0]), np.zeros((3, 3)), dt))
         assert 0.9 < cov[0, 0] / (scale * speed).var() < 1.1, (rate, cov[0, 0])

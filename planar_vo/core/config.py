@@ -13,8 +13,11 @@ from typing import Any
 
 import yaml
 
+from planar_vo.core.geometry.camera import Mounting
+
 __all__ = ['Param', 'SCHEMA', 'ConfigError', 'defaults', 'validate', 'load_params_file',
-           'read_params_yaml', 'params_section', 'MOUNTING_PARAMS']
+           'read_params_yaml', 'params_section', 'MOUNTING_PARAMS',
+           'mounting_from_params']
 
 NODE_NAME = 'planar_vo'
 
@@ -230,3 +233,10 @@ def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, 
     if not isinstance(section, dict):
         raise ConfigError(f'params file {path} has no "{node_name}: ros__parameters:" section')
     return validate(section)
+
+
+def mounting_from_params(params: Any) -> Mounting:
+    """The Mounting the ``camera_*`` parameters describe."""
+    return Mounting(x=params['camera_x'], y=params['camera_y'], height=params['camera_height'],
+                    roll=params['camera_roll'], pitch=params['camera_pitch'],
+                    yaw=params['camera_yaw'])

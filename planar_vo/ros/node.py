@@ -43,8 +43,9 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_srvs.srv import Trigger
 
 from planar_vo.core import config
+from planar_vo.core.config import mounting_from_params
 from planar_vo.core.geometry.camera import CameraModelError
-from planar_vo.core.odometry import VisualOdometry, mounting_from_params
+from planar_vo.core.odometry import VisualOdometry
 from planar_vo.ros import messages
 from planar_vo.ros.health import Health
 from planar_vo.ros.pairing import Pairing

@@ -36,7 +36,8 @@ from planar_vo.core.estimation.ransac import PoseEstimationError, TransferModel,
 from planar_vo.core.frontend.motion_search import GroundMotionSearch
 from planar_vo.core.frontend.tracker import Tracker
 from planar_vo.core.geometry.camera import rays_through
-from planar_vo.core.odometry import VisualOdometry, compose
+from planar_vo.core.geometry.se2 import compose
+from planar_vo.core.odometry import VisualOdometry
 from planar_vo.io.bag import BagError, open_reader, typestore
 from planar_vo.io.resources import default_bag, default_params
 from planar_vo.ros.health import RECENT_FRAMES
@@ -154,7 +155,9 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
                       min_distance=params['min_distance'], window=params['klt_window'],
                       levels=params['klt_levels'], fb_threshold=params['fb_threshold'])
     correspondences = []
-    mask = vo._mask if vo._mask is not None else np.full(decoded[0][0].shape, 255, np.uint8)
+    mask = vo.front.mask
+    if mask is None:
+        mask = np.full(decoded[0][0].shape, 255, np.uint8)
     for gray, _ in decoded:
         tracker.track(gray)
         correspondences.append(tracker.correspondences()[1:])

@@ -19,10 +19,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from planar_vo.core.geometry.camera import CameraModel, Mounting, level_to_base
+from planar_vo.core.geometry.se2 import circular_motion
 from planar_vo.core.geometry.solvers import homography_npoint, paper_to_planar
 
 __all__ = ['TransferModel', 'RansacResult', 'PoseEstimationError', 'estimate_motion',
-           'refine_motion', 'motion_covariance', 'transfer_errors', 'circular_motion']
+           'refine_motion', 'motion_covariance', 'transfer_errors']
 
 
 class PoseEstimationError(RuntimeError):
@@ -89,18 +90,6 @@ class RansacResult:
         r = np.sqrt(r2)
         G = np.array([[0.0, 0.0, -1.0], [y / r2, -x / r2, 0.0], [x / r, y / r, 0.0]])
         return G @ self.covariance @ G.T
-
-
-def circular_motion(yaw: np.ndarray, rho: np.ndarray) -> np.ndarray:
-    """Circular motion of the axle: travel ``rho`` along the chord at half the yaw, (..., 3)."""
-    return np.stack([rho * np.cos(0.5 * yaw), rho * np.sin(0.5 * yaw), yaw], axis=-1)
-
-
-def inverse_motion(motion: np.ndarray) -> np.ndarray:
-    """The planar motion (..., 3) back: base_link 1 in base_link 2, of 2 in 1."""
-    x, y, yaw = motion[..., 0], motion[..., 1], motion[..., 2]
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.stack([-(c * x + s * y), s * x - c * y, -yaw], axis=-1)
 
 
 def _predict(motions: np.ndarray, p1: np.ndarray, model: TransferModel) -> np.ndarray:

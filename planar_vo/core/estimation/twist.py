@@ -15,44 +15,15 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-__all__ = ['TwistAtStamp', 'mean_twist', 'twist_motion']
+from planar_vo.core.geometry.se2 import mean_twist
+
+__all__ = ['TwistAtStamp']
 
 # What a car may do that a constant-acceleration extrapolation cannot see, per axis of
 # (vx, vy, yaw rate): its acceleration (m/s², rad/s²) and jerk (m/s³, rad/s³). Generous:
 # hard braking is ~8 m/s², a comfortable jerk ~1-2 m/s³; the rendered drives reach 4 m/s³.
 _ACCELERATION = (4.0, 1.0, 1.0)
 _JERK = (4.0, 1.0, 2.0)
-
-
-def mean_twist(motion: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """The constant body twist (vx, vy, yaw rate) that moves by ``motion`` in ``dt``.
-
-    The SE(2) logarithm over ``dt``: for circular motion (a car's rear axle) the speed
-    along the arc, not the chord, and no sideways velocity. Returns the twist (3,) and its
-    Jacobian (3, 3) with respect to ``motion`` (x, y, yaw).
-    """
-    x, y, yaw = motion
-    half = 0.5 * yaw
-    # V^-1 of the SE(2) exponential: (yaw / 2) [[cot(yaw/2), 1], [-1, cot(yaw/2)]].
-    k = 1.0 - half * half / 3.0 if abs(half) < 1e-4 else half / np.tan(half)
-    v_inv = np.array([[k, half], [-half, k]])
-    # d k / d yaw, for the Jacobian (small-angle series near zero).
-    dk = -half / 3.0 if abs(half) < 1e-4 else 0.5 * (
-        1.0 / np.tan(half) - half / np.sin(half) ** 2)
-    d_yaw = np.array([dk * x + 0.5 * y, -0.5 * x + dk * y])
-    jac = np.zeros((3, 3))
-    jac[:2, :2], jac[:2, 2], jac[2, 2] = v_inv, d_yaw, 1.0
-    return np.append(v_inv @ np.array([x, y]), yaw) / dt, jac / dt
-
-
-def twist_motion(twist: np.ndarray, dt: float) -> np.ndarray:
-    """The motion (x, y, yaw) a constant body twist makes in ``dt``: the SE(2) exponential."""
-    vx, vy, rate = twist
-    yaw = rate * dt
-    if abs(yaw) < 1e-9:
-        return np.array([vx * dt, vy * dt, yaw])
-    s, c = np.sin(yaw), np.cos(yaw)
-    return np.array([(s * vx - (1 - c) * vy) / rate, ((1 - c) * vx + s * vy) / rate, yaw])
 
 
 @dataclass(frozen=True)

@@ -17,8 +17,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from planar_vo.core.estimation.ransac import TransferModel, circular_motion, inverse_motion
+from planar_vo.core.estimation.ransac import TransferModel
 from planar_vo.core.geometry.camera import CameraModel, rays_through
+from planar_vo.core.geometry.se2 import circular_motion, inverse_motion
 
 __all__ = ['GroundMotionSearch']
 

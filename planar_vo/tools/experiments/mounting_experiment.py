@@ -29,9 +29,11 @@ import numpy as np
 
 from planar_vo import synth
 from planar_vo.core import config, evaluate
+from planar_vo.core.config import mounting_from_params
 from planar_vo.core.estimation.baselines import OpenCVReference
 from planar_vo.core.geometry.camera import CameraModel
-from planar_vo.core.odometry import VisualOdometry, compose, mounting_from_params
+from planar_vo.core.geometry.se2 import compose
+from planar_vo.core.odometry import VisualOdometry
 from planar_vo.tools.progress import Progress
 
 __all__ = ['VARIANTS', 'plain_opencv_path', 'run_drive', 'main']

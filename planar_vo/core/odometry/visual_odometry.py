@@ -1,0 +1,435 @@
+"""Per-frame planar visual odometry: a grey image and its stamp in, the base_link pose out.
+
+gate (:mod:`.frame_gate`) → track on the ground (:class:`GroundFrontEnd`) → undistort →
+intersect the ground (rays well below the horizon) → 1-point RANSAC + refinement against the
+reference frame, with the attitude (:mod:`.attitude_filter`) → metric motion of base_link →
+compose (:mod:`.pose_integrator`, covariance model in :mod:`.covariance`).
+No ROS imports: the node and the replay CLI are thin adapters around :class:`VisualOdometry`.
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from typing import Any
+
+import numpy as np
+
+from planar_vo.core.config import mounting_from_params
+from planar_vo.core.estimation.baselines import homography_motion
+from planar_vo.core.estimation.calibration import (
+    MountingCalibrator,
+    MountingEstimate,
+    calibrated_params,
+    mounting_advice,
+)
+from planar_vo.core.estimation.ransac import (
+    PoseEstimationError,
+    RansacResult,
+    TransferModel,
+    estimate_motion,
+    refine_motion,
+    transfer_errors,
+)
+from planar_vo.core.frontend.ground_frontend import GroundFrontEnd
+from planar_vo.core.frontend.tracker import Tracker
+from planar_vo.core.geometry.camera import CameraModel, Mounting, rays_through
+from planar_vo.core.geometry.se2 import twist_motion
+from planar_vo.core.odometry.attitude_filter import AttitudeFilter, AttitudeNoise
+from planar_vo.core.odometry.frame_gate import FrameGate
+from planar_vo.core.odometry.pose_integrator import PoseIntegrator
+from planar_vo.core.odometry.result import FrameResult, FrameStatus
+
+__all__ = ['VisualOdometry']
+
+_MAX_FAILED_FRAMES = 3  # frames in a row without an estimate before tracking counts as lost
+_MASK_REDRAW_YAW = np.radians(0.5)
+_WARPED_KLT_WINDOW = 25
+_OUTLIER_DROP = 3.0  # tracks this many inlier thresholds off the motion are dropped
+
+
+class VisualOdometry:
+    """Planar odometry of base_link from one ground-looking camera. Not thread-safe.
+
+    An orchestrator over four parts, each holding one idea: the :class:`FrameGate`, the
+    :class:`GroundFrontEnd` (tracks), the :class:`AttitudeFilter` (None for a rigid, exact
+    mounting) and the :class:`PoseIntegrator` (pose, twist, covariances).
+    """
+
+    def __init__(
+        self,
+        camera: CameraModel,
+        mounting: Mounting,
+        *,
+        tracker: Tracker | None = None,
+        horizon_margin: float = np.radians(12.0),
+        ransac_method: str = '1point',
+        inlier_threshold: float = 0.5,
+        ransac_confidence: float = 0.999,
+        circular_refine: bool = False,
+        min_inliers: int = 12,
+        max_frame_gap: float = 1.0,
+        attitude: AttitudeNoise | None = None,
+        self_calibrate: bool = True,
+        klt_prewarp: bool = True,
+        klt_first_search: bool = True,
+    ) -> None:
+        # The defaults are the parameter schema's (a test holds them to it); the tracker's
+        # window is the one for the warp (Tracker's own default suits KLT without it).
+        self.front = GroundFrontEnd(
+            tracker if tracker is not None else Tracker(window=_WARPED_KLT_WINDOW),
+            horizon_margin=horizon_margin, klt_prewarp=klt_prewarp,
+            klt_first_search=klt_first_search)
+        self.ransac_method = ransac_method
+        self.inlier_threshold = inlier_threshold
+        self.ransac_confidence = ransac_confidence
+        self.circular_refine = circular_refine
+        self.min_inliers = min_inliers
+        self.gate = FrameGate(max_frame_gap)
+        self.integrator = PoseIntegrator()
+        self.attitude_filter = (None if attitude is None else
+                                AttitudeFilter(attitude, mounting, self_calibrate=self_calibrate))
+        self.counters = {'frames': 0, 'estimated': 0, 'no_estimate': 0, 'reinitialized': 0,
+                         'time_jumps': 0, 'blank': 0, 'skipped': 0}
+        self._rng = np.random.default_rng(0)
+        self.configured_mounting = mounting
+        self._update_geometry(camera, mounting, check_round_trip=True)
+        self.reset()
+
+    @classmethod
+    def from_params(cls, camera: CameraModel, params: Any) -> VisualOdometry:
+        """Build from the parameter schema's values (see :mod:`planar_vo.core.config`)."""
+        tracker = Tracker(
+            max_features=params['max_features'], quality_level=params['quality_level'],
+            min_distance=params['min_distance'], window=params['klt_window'],
+            levels=params['klt_levels'], fb_threshold=params['fb_threshold'])
+        return cls(
+            camera, mounting_from_params(params), tracker=tracker,
+            horizon_margin=params['horizon_margin'], ransac_method=params['ransac_method'],
+            inlier_threshold=params['inlier_threshold'],
+            ransac_confidence=params['ransac_confidence'],
+            circular_refine=params['circular_refine'], min_inliers=params['min_inliers'],
+            max_frame_gap=params['max_frame_gap'],
+            attitude=AttitudeNoise.from_params(params) if params['estimate_attitude'] else None,
+            self_calibrate=params['self_calibrate'], klt_prewarp=params['klt_prewarp'],
+            klt_first_search=params['klt_first_search'])
+
+    # ---------------------------------------------------------------- state, read by adapters
+    @property
+    def tracker(self) -> Tracker:
+        return self.front.tracker
+
+    @property
+    def horizon_margin(self) -> float:
+        return self.front.horizon_margin
+
+    @property
+    def pose(self) -> np.ndarray:
+        return self.integrator.pose
+
+    @property
+    def pose_covariance(self) -> np.ndarray:
+        return self.integrator.pose_covariance
+
+    @property
+    def twist(self) -> np.ndarray:
+        return self.integrator.twist
+
+    @property
+    def twist_covariance(self) -> np.ndarray:
+        return self.integrator.twist_covariance
+
+    def reset(self) -> None:
+        """Restart at the origin with no tracks."""
+        self.front.reset()
+        self.integrator.reset()
+        self._ref_stamp: float | None = None
+        self.gate.last_stamp = None
+        self._failed_frames = 0
+        if self.attitude_filter is not None:
+            self.attitude_filter.reset()
+
+    def mounting_estimate(self) -> MountingEstimate:
+        """The self-calibrated static mounting so far, with standard deviations."""
+        if self.attitude_filter is None:
+            return MountingCalibrator(self.configured_mounting).estimate()
+        return self.attitude_filter.calibrator.estimate()
+
+    def mounting_diagnostics(self) -> tuple[dict[str, str], dict[str, str]]:
+        """(key/values for diagnostics, advice per parameter the drive says is off).
+
+        Empty while self-calibration is off.
+        """
+        if self.attitude_filter is None or not self.attitude_filter.self_calibrate:
+            return {}, {}
+        estimate, configured = self.mounting_estimate(), self.configured_mounting
+        now = calibrated_params(configured)
+        values = {}
+        for name, value in estimate.as_params().items():
+            std = estimate.std[name]
+            if name == 'camera_x':
+                values[f'{name} estimated (m)'] = f'{value:.3f} +- {std:.3f}'
+                values[f'{name} configured (m)'] = f'{now[name]:.3f}'
+            else:
+                values[f'{name} estimated (deg)'] = (f'{np.degrees(value):.3f} +- '
+                                                     f'{np.degrees(std):.3f}')
+                values[f'{name} configured (deg)'] = f'{np.degrees(now[name]):.3f}'
+        values['calibration drive (s)'] = f'{estimate.seconds:.1f}'
+        return values, mounting_advice(configured, estimate)
+
+    def set_camera(self, camera: CameraModel) -> None:
+        """New intrinsics (e.g. a changed CameraInfo); tracks stay.
+
+        Tracking restarts only when the next image processed differs in size from the last
+        one tracked: a camera briefly of another size (a wrong CameraInfo, then the right one
+        again) costs only the frames it made unusable.
+
+        Raises CameraModelError (and keeps the old camera) when the lens model cannot be
+        inverted over the ground region.
+        """
+        self._update_geometry(camera, self.mounting, check_round_trip=True)
+
+    def set_pose(self, pose: np.ndarray, covariance: np.ndarray) -> None:
+        """Continue from ``pose`` (x, y, yaw in odom) with ``covariance`` (3x3); tracks stay.
+
+        The next measured motion is composed onto it, as robot_localization's set_pose does.
+        """
+        self.integrator.set_pose(pose, covariance)
+
+    def set_mounting(self, mounting: Mounting) -> None:
+        """New camera mounting (run-time parameter change); tracks stay, calibration restarts."""
+        self._update_geometry(self.camera, mounting)
+        self.configured_mounting = mounting
+        if self.attitude_filter is not None:
+            self.attitude_filter = AttitudeFilter(
+                self.attitude_filter.noise, mounting,
+                self_calibrate=self.attitude_filter.self_calibrate)
+
+    def diagnostics(self) -> dict[str, str]:
+        """The estimator's state as /diagnostics key/values (the node adds them as they are)."""
+        c, m = self.counters, self.mounting
+        return {
+            'frames processed': str(c['frames']), 'frames estimated': str(c['estimated']),
+            'frames without estimate': str(c['no_estimate']),
+            'tracking restarts': str(c['reinitialized']), 'time jumps': str(c['time_jumps']),
+            'blank frames': str(c['blank']), 'frames skipped': str(c['skipped']),
+            'camera mounting (x y z m, roll pitch yaw rad)': (
+                f'{m.x:.3f} {m.y:.3f} {m.height:.3f}, {m.roll:.4f} {m.pitch:.4f} {m.yaw:.4f}'),
+            'camera': (f'{self.camera.width}x{self.camera.height}, fx {self.camera.K[0, 0]:.1f}, '
+                       f'{self.camera.distortion_model}'),
+        }
+
+    def _update_geometry(self, camera: CameraModel, mounting: Mounting, *,
+                         check_round_trip: bool = False) -> None:
+        """Switch to ``camera`` and ``mounting``, or change nothing if that raises."""
+        mask = self.front.mask_for(camera, mounting, check_round_trip=check_round_trip)
+        self._model = TransferModel.from_camera(mounting, camera)
+        self.camera, self.mounting = camera, mounting
+        self.front.set_geometry(camera, mounting, mask)
+
+    # ---------------------------------------------------------------- one frame
+    def process(self, gray: np.ndarray, stamp: float) -> FrameResult:
+        """Add one grey image (uint8, HxW) taken at ``stamp`` (s); return the new state.
+
+        If anything raises, the state (tracks, stamps, pose, counters) is left as it was
+        before the call and the exception propagates: a caller that survives it can go on.
+        """
+        saved = self._snapshot()
+        try:
+            return self._process(gray, stamp)
+        except BaseException:
+            self._restore(saved)
+            raise
+
+    def _snapshot(self) -> tuple:
+        """Shallow copies of every part's state.
+
+        Each part replaces its arrays, never changes them in place; the counters, a dict
+        changed in place, are copied.
+        """
+        parts = (self.front, self.front.tracker, self.gate, self.integrator,
+                 self.attitude_filter, None if self.attitude_filter is None
+                 else self.attitude_filter.calibrator)
+        return (dict(vars(self)), dict(self.counters),
+                [(part, copy.copy(vars(part))) for part in parts if part is not None])
+
+    def _restore(self, saved: tuple) -> None:
+        own, counters, parts = saved
+        vars(self).update(own)
+        self.counters = counters
+        for part, state in parts:
+            vars(part).clear()
+            vars(part).update(state)
+
+    def _process(self, gray: np.ndarray, stamp: float) -> FrameResult:
+        t0 = time.perf_counter()
+        self.counters['frames'] += 1
+        if not self.camera.width:  # a CameraInfo without size: the images give it
+            self._update_geometry(_with_size(self.camera, gray.shape), self.mounting,
+                                  check_round_trip=True)
+        refusal = self.gate.check(gray, stamp, (self.camera.width, self.camera.height),
+                                  self.tracker.image_shape)
+        if refusal is not None:
+            if refusal.counter:
+                self.counters[refusal.counter] += 1
+            if refusal.restart:
+                self._restart(stamp, extrapolate=refusal.extrapolate)
+                self.front.detect(is_reference=True, gray=gray)
+            return self._result(stamp, refusal.status, t0, message=refusal.message)
+        previous, self.gate.last_stamp = self.gate.last_stamp, stamp
+        if self._ref_stamp is None:
+            self._ref_stamp = stamp
+            self.front.detect(is_reference=True, gray=gray)
+            return self._result(stamp, FrameStatus.FIRST, t0)
+        mounting, model = self._current_geometry()
+        dt = stamp - previous
+        held = twist_motion(self.twist, dt) if self.integrator.twist_known else None
+        motion = self.front.predicted_motion(gray, dt, model, held)
+        self.front.track(gray, motion, mounting, model,
+                         last_is_reference=self._ref_stamp == previous)
+        t_track = time.perf_counter()
+        result = self._estimate(stamp, t0)
+        result.timing_ms['track'] = 1e3 * (t_track - t0)
+        self.front.detect(is_reference=result.status in (FrameStatus.OK,
+                                                         FrameStatus.REINITIALIZED))
+        result.tracks = len(self.tracker)
+        result.timing_ms['total'] = 1e3 * (time.perf_counter() - t0)
+        return result
+
+    def _current_geometry(self) -> tuple[Mounting, TransferModel]:
+        """The mounting tilted by the current attitude estimate, and its transfer model."""
+        if self.attitude_filter is None:
+            return self.mounting, self._model
+        mounting = self.attitude_filter.tilted(self.mounting)
+        return mounting, TransferModel.from_camera(mounting, self.camera)
+
+    def _hypothesis_threshold(self, stamp: float) -> float:
+        """Inlier threshold (px) of the hypotheses (see AttitudeFilter.hypothesis_threshold)."""
+        if self.attitude_filter is None:
+            return self.inlier_threshold
+        return self.attitude_filter.hypothesis_threshold(
+            self.inlier_threshold, self._model.focal_px, stamp - self._ref_stamp)
+
+    def _estimate(self, stamp: float, t0: float) -> FrameResult:
+        idx, ref_px, cur_px = self.tracker.correspondences()
+        m2 = self.tracker.points_normalized[idx]
+        rays1 = rays_through(self.tracker.reference_normalized[idx])
+        # Both frames seen through the attitude of the reference frame: good enough to pick
+        # hypotheses and inliers; the refinement then tilts each frame on its own.
+        mounting, model = self._current_geometry()
+        p1, v1 = mounting.ground_points(rays1, self.horizon_margin)
+        p2, v2 = mounting.ground_points(rays_through(m2), self.horizon_margin)
+        ok = v1 & v2
+        if self.attitude_filter is not None:
+            ok &= self.front.window_inside(ref_px) & self.front.window_inside(cur_px)
+        n = int(np.count_nonzero(ok))
+        t_pose = time.perf_counter()
+        try:
+            if self.ransac_method == 'opencv_homography':
+                est = self._estimate_with_opencv(p1[ok], m2[ok], model)
+            else:
+                est = estimate_motion(
+                    p1[ok], p2[ok], m2[ok], model, method=self.ransac_method,
+                    threshold_px=self._hypothesis_threshold(stamp),
+                    confidence=self.ransac_confidence,
+                    circular_refine=self.circular_refine, rng=self._rng)
+                if self.attitude_filter is not None:
+                    est, calibrated = self.attitude_filter.refine(
+                        est, rays1[ok], m2[ok], self.mounting, model,
+                        dt=stamp - self._ref_stamp, inlier_threshold=self.inlier_threshold,
+                        start_threshold=self._hypothesis_threshold(stamp),
+                        min_inliers=self.min_inliers)
+                    if calibrated is not None:
+                        self._use_mounting(calibrated)
+            self._require_inliers(est.inliers)
+        except PoseEstimationError as err:
+            pose_ms = 1e3 * (time.perf_counter() - t_pose)
+            self._failed_frames += 1
+            # Too few tracks to ever match the reference again, or too many frames in a row
+            # without a match (the surviving tracks are likely wrong): tracking is lost.
+            if n < self.min_inliers or self._failed_frames > _MAX_FAILED_FRAMES:
+                self._restart(stamp, extrapolate=True)
+                return self._result(stamp, FrameStatus.REINITIALIZED, t0, correspondences=n,
+                                    message=f'tracking lost ({err}): restarted',
+                                    pose_ms=pose_ms)
+            self.counters['no_estimate'] += 1
+            return self._result(stamp, FrameStatus.NO_ESTIMATE, t0, correspondences=n,
+                                message=str(err), pose_ms=pose_ms)
+        pose_ms = 1e3 * (time.perf_counter() - t_pose)
+        self._failed_frames = 0
+        self.integrator.add(self._ref_stamp, stamp - self._ref_stamp, est.motion,
+                            est.covariance)
+        self._ref_stamp = stamp
+        # Tracks far off the motion are obstacles or mismatches: free their grid cells.
+        errors = transfer_errors(est.motion, p1[ok], m2[ok], model)
+        self.front.drop(idx[ok][errors > _OUTLIER_DROP * self.inlier_threshold])
+        self.counters['estimated'] += 1
+        used = cur_px[ok]
+        return self._result(
+            stamp, FrameStatus.OK, t0, correspondences=n,
+            inliers=int(np.count_nonzero(est.inliers)), hypotheses=est.hypotheses,
+            rms_px=est.rms_px, pose_ms=pose_ms,
+            inlier_points=used[est.inliers], outlier_points=used[~est.inliers])
+
+    def _require_inliers(self, inliers: np.ndarray) -> None:
+        """Raise PoseEstimationError when fewer than ``min_inliers`` fit."""
+        count = int(np.count_nonzero(inliers))
+        if count < self.min_inliers:
+            raise PoseEstimationError(f'{count} inliers, fewer than {self.min_inliers}')
+
+    def _estimate_with_opencv(self, p1: np.ndarray, m2: np.ndarray,
+                              model: TransferModel) -> RansacResult:
+        """The plain-OpenCV baseline (4-point homography), for comparison only."""
+        motion, inliers = homography_motion(
+            model.project(p1), m2, model.mounting,
+            threshold=self.inlier_threshold / model.focal_px)
+        if np.count_nonzero(inliers) < 3:
+            raise PoseEstimationError('the OpenCV homography has fewer than 3 inliers')
+        _, covariance, rms, _ = refine_motion(motion, p1[inliers], m2[inliers], model,
+                                              iterations=0)
+        return RansacResult(motion, covariance, inliers, 0, rms)
+
+    def _use_mounting(self, mounting: Mounting) -> None:
+        """Switch to a self-calibrated mounting.
+
+        The ground mask (13 ms) is drawn again only when the yaw moved visibly since it was
+        drawn: camera_x does not move it, and small yaws hardly do.
+        """
+        if abs(mounting.yaw - self.front.mask_yaw) > _MASK_REDRAW_YAW:
+            self._update_geometry(self.camera, mounting)
+        else:
+            self.mounting, self._model = mounting, TransferModel.from_camera(mounting, self.camera)
+
+    def _restart(self, stamp: float, *, extrapolate: bool) -> None:
+        """Restart tracking; the pose keeps going but is distrusted (see PoseIntegrator)."""
+        self.counters['reinitialized'] += 1
+        gap = 0.0 if self._ref_stamp is None else max(stamp - self._ref_stamp, 0.0)
+        self.integrator.restart(gap, extrapolate=extrapolate)
+        self._failed_frames = 0
+        self.tracker.reset()
+        if self.attitude_filter is not None:
+            self.attitude_filter.restart()
+        self._ref_stamp = stamp
+        self.gate.last_stamp = stamp
+
+    def _result(self, stamp: float, status: FrameStatus, t0: float, *, message: str = '',
+                correspondences: int = 0, inliers: int = 0, hypotheses: int = 0,
+                rms_px: float = 0.0, pose_ms: float = 0.0,
+                inlier_points: np.ndarray | None = None,
+                outlier_points: np.ndarray | None = None) -> FrameResult:
+        unseen = None
+        if status != FrameStatus.OK and self._ref_stamp is not None:
+            unseen = max(stamp - self._ref_stamp, 0.0)
+        pose, cov, twist, twist_cov = self.integrator.reported(unseen)
+        return FrameResult(
+            stamp=stamp, pose=pose, pose_covariance=cov, twist=twist,
+            twist_covariance=twist_cov, status=status, message=message,
+            tracks=len(self.tracker), correspondences=correspondences, inliers=inliers,
+            hypotheses=hypotheses, rms_px=rms_px,
+            timing_ms={'pose': pose_ms, 'total': 1e3 * (time.perf_counter() - t0)},
+            inlier_points=inlier_points if inlier_points is not None else np.zeros((0, 2)),
+            outlier_points=outlier_points if outlier_points is not None else np.zeros((0, 2)))
+
+
+def _with_size(camera: CameraModel, shape: tuple[int, int]) -> CameraModel:
+    return CameraModel(camera.K, camera.D, camera.distortion_model, shape[1], shape[0])
