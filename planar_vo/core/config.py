@@ -7,6 +7,7 @@ The node declares every parameter from it; ``planar_vo_replay`` reads the same Y
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,7 +17,7 @@ import yaml
 from planar_vo.core.geometry.camera import Mounting
 
 __all__ = ['Param', 'SCHEMA', 'ConfigError', 'defaults', 'validate', 'load_params_file',
-           'read_params_yaml', 'params_section', 'MOUNTING_PARAMS',
+           'read_params_yaml', 'params_section', 'MOUNTING_PARAMS', 'schema_markdown',
            'mounting_from_params']
 
 NODE_NAME = 'planar_vo'
@@ -175,6 +176,62 @@ def validate(values: dict[str, Any]) -> dict[str, Any]:
     for name, value in values.items():
         out[name] = _BY_NAME[name].check(value)
     return out
+
+
+_ANGLE = re.compile(r'\brad\b(?!/)')  # a description giving its unit as rad (not rad/s)
+
+
+def _markdown_value(param: Param, value: Any) -> str:
+    """One value as docs/parameters.md shows it: YAML spelling, angles also in degrees."""
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, str):
+        return f'`{value}`'
+    text = f'{value:.6g}'
+    if isinstance(value, float) and _ANGLE.search(param.description):
+        text += f' ({math.degrees(value):.4g}°)'
+    return text
+
+
+def schema_markdown() -> str:
+    """docs/parameters.md: every parameter of :data:`SCHEMA` as a Markdown table.
+
+    Regenerate the file with
+    ``python -c 'from planar_vo.core import config; print(config.schema_markdown(), end="")'
+    > docs/parameters.md``; ``test/test_docs.py`` checks that it is up to date.
+    """
+    lines = [
+        '# Parameters',
+        '',
+        '<!-- Generated from planar_vo.core.config.SCHEMA; do not edit. Regenerate with:',
+        "python -c 'from planar_vo.core import config; print(config.schema_markdown(), end=\"\")'"
+        ' > docs/parameters.md -->',
+        '',
+        'Every parameter of `planar_vo_node`, in the order of `config/planar_vo.yaml`. The node',
+        'declares each with this description and range (`ros2 param describe /planar_vo NAME`);',
+        '`planar_vo_replay`, `planar_vo_calibrate` and the other tools read the same params file.',
+        'Ranges are inclusive; integers are accepted for float parameters. Read-only parameters',
+        'are set at start-up only; the others can be changed at run time (`ros2 param set`): a',
+        'mounting change applies at once, a tracking or estimation change restarts tracking',
+        '(the pose is kept). An invalid value is refused with the reason; at start-up the node',
+        'prints one line and exits with status 2.',
+        '',
+        '| name | type | default | range / choices | read-only | description |',
+        '|---|---|---|---|---|---|',
+    ]
+    for param in SCHEMA:
+        if param.choices:
+            allowed = ', '.join(f'`{c}`' for c in param.choices)
+        elif param.low is not None or param.high is not None:
+            allowed = (f'{_markdown_value(param, param.low)} .. '
+                       f'{_markdown_value(param, param.high)}')
+        else:
+            allowed = ''
+        cells = [f'`{param.name}`', type(param.default).__name__,
+                 _markdown_value(param, param.default), allowed,
+                 'yes' if param.read_only else 'no', param.description.replace('|', '\\|')]
+        lines.append('| ' + ' | '.join(cells) + ' |')
+    return '\n'.join(lines) + '\n'
 
 
 def params_section(data: Any, node_name: str = NODE_NAME) -> Any:
