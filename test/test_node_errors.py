@@ -79,7 +79,7 @@ def test_warnings_are_throttled_per_cause_with_bounded_memory(in_process_node, c
     letters = 'abcdefghij'
     for k in range(100):  # 100 distinct causes: only the most recent are remembered
         node._warn(f'cause {letters[k // 10]}{letters[k % 10]}')
-    assert len(node._warned) == 64
+    assert len(node._throttle._seen) == 64
 
 
 def test_an_image_counts_as_arrived_when_the_middleware_received_it():

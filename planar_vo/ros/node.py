@@ -17,24 +17,14 @@ the odometry (tracking restarts, the pose is kept).
 from __future__ import annotations
 
 import functools
-import re
 import sys
 import time
-from collections import OrderedDict, deque
 
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
-from nav_msgs.msg import Odometry, Path
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -48,24 +38,18 @@ from planar_vo.core.geometry.camera import CameraModelError
 from planar_vo.core.odometry import VisualOdometry
 from planar_vo.ros import messages
 from planar_vo.ros.health import Health
+from planar_vo.ros.outputs import OdometryOutputs
 from planar_vo.ros.pairing import Pairing
+from planar_vo.ros.parameters import SCHEMA_BY_NAME, StartupError, declare_schema
+from planar_vo.ros.throttle import WarningThrottle
 
-_PARAMS = {p.name: p for p in config.SCHEMA}
 _OUTPUT_PARAMS = {'odom_frame', 'base_frame', 'publish_tf', 'publish_path', 'path_max_poses',
                   'publish_debug_image', 'image_transport', 'image_reliability',
                   'rectified_input'}
 _PLANAR = (0, 1, 5)  # x, y, yaw within a 6x6 covariance over (x, y, z, roll, pitch, yaw)
 _WARN_EVERY = 10.0  # s: the same cause of a skipped frame is logged at most this often
 _WARN_CAUSES = 64  # distinct causes remembered for throttling (oldest forgotten first)
-# Numbers in a message (sizes like 640x480 too), but not digits inside names like mono16.
-_NUMBER = re.compile(r'\d+x\d+|(?<![A-Za-z_\d.])[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?'
-                     r'|\bnan\b|\binf\b')
-_PATH_STEP = 0.05  # m or rad between poses appended to ~/path
 _PAIRING_WAIT = 0.05  # s an image waits at most for the CameraInfo of its stamp
-
-
-class StartupError(Exception):
-    """An invalid start-up parameter: reported as one line, exit status 2."""
 
 
 def _guarded(where: str):
@@ -107,7 +91,7 @@ class PlanarVoNode(Node):
         self.vo: VisualOdometry | None = None
         self.camera = None
         self._calibration = None  # (the last accepted CameraInfo's fields, its CameraModel)
-        self._warned: OrderedDict[str, tuple[float, int]] = OrderedDict()
+        self._throttle = WarningThrottle(_WARN_EVERY, _WARN_CAUSES)
         self._errors = 0  # unexpected exceptions (bugs) caught in callbacks
         self._mounting_advised: set[str] = set()
         self._pairing = Pairing()
@@ -135,98 +119,36 @@ class PlanarVoNode(Node):
             self._image_sub = self.create_subscription(Image, topic, self._on_image, image_qos)
         self._set_pose_sub = self.create_subscription(
             PoseWithCovarianceStamped, 'set_pose', self._on_set_pose, 10)
-        self._odom_pub = self.create_publisher(Odometry, 'odom', 10)
-        self._path_pub = self.create_publisher(Path, '~/path', 1)
-        self._debug_pub = self.create_publisher(Image, '~/debug_image', 1)
+        self._outputs = OdometryOutputs(self, self.params)
         self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self._path_poses: deque[PoseStamped] = deque(maxlen=p['path_max_poses'])
         self._reset_srv = self.create_service(Trigger, '~/reset', self._on_reset)
         steady = Clock(clock_type=ClockType.STEADY_TIME)  # also with use_sim_time, no /clock
         self._diag_timer = self.create_timer(1.0, self._publish_diagnostics, clock=steady)
         self._pairing_timer = self.create_timer(_PAIRING_WAIT, self._stop_waiting, clock=steady,
                                                 autostart=False)
-        self._tf = None
-        self._tf_missing = False
-        self._update_tf()
         self.get_logger().info(
             f'listening on {self._image_sub.topic_name} ({p["image_transport"]}, '
             f'{p["image_reliability"]}) and {self._info_sub.topic_name}; '
-            f'publishing {self._odom_pub.topic_name}')
-
-    def _update_tf(self) -> None:
-        """Create the /tf broadcaster when publish_tf is (or becomes) true."""
-        if not self.params['publish_tf'] or self._tf is not None or self._tf_missing:
-            return
-        try:
-            from tf2_ros import TransformBroadcaster
-            self._tf = TransformBroadcaster(self)
-        except ImportError:
-            self._tf_missing = True
-            self.get_logger().info('tf2_ros is not installed: publishing nav_msgs/Odometry '
-                                   'only, no odom -> base_link transform on /tf')
+            f'publishing {self._outputs.odom_pub.topic_name}')
 
     # ---------------------------------------------------------------- parameters
     def _declare_parameters(self) -> dict:
-        """Declare the schema; a bad start-up value is a StartupError with our reason.
-
-        Each parameter is first declared with dynamic typing and no range, so that only
-        ``_validate`` judges the start-up value (and an integer for a float is accepted);
-        then the value is made a float if it should be, and the typed, ranged descriptor that
-        ``ros2 param describe`` shows is set. Public rclpy API only.
-        """
-        self.add_pre_set_parameters_callback(self._ints_to_floats)
-        self.add_on_set_parameters_callback(self._validate)
-        self._rejected = ''
-        for spec in config.SCHEMA:
-            try:
-                value = self.declare_parameter(spec.name, spec.default,
-                                               _descriptor(spec, loose=True)).value
-            except (InvalidParameterValueException, InvalidParameterTypeException) as err:
-                raise StartupError(f'invalid parameter: {self._rejected or err}') from None
-            if isinstance(spec.default, float) and not isinstance(value, float):
-                self.set_parameters([Parameter(spec.name, value=float(value))])
-            if not spec.read_only:  # rclpy keeps read-only descriptors as declared
-                self.set_descriptor(spec.name, _descriptor(spec))
-        unknown = sorted(set(self._parameter_overrides) - set(_PARAMS))  # read, never written
+        params = declare_schema(self)
+        unknown = sorted(set(self._parameter_overrides) - set(SCHEMA_BY_NAME))  # read only
         for name in unknown:
             if not name.startswith('qos_overrides.') and name != 'use_sim_time':
                 self.get_logger().warning(f'unknown parameter {name!r} ignored')
-        return {s.name: _PARAMS[s.name].check(self.get_parameter(s.name).value)
-                for s in config.SCHEMA}
-
-    def _ints_to_floats(self, params: list[Parameter]) -> list[Parameter]:
-        out = []
-        for prm in params:
-            spec = _PARAMS.get(prm.name)
-            if (spec is not None and isinstance(spec.default, float)
-                    and prm.type_ == Parameter.Type.INTEGER):
-                prm = Parameter(prm.name, value=float(prm.value))
-            out.append(prm)
-        return out
-
-    def _validate(self, params: list[Parameter]) -> SetParametersResult:
-        for prm in params:
-            spec = _PARAMS.get(prm.name)
-            if spec is None:
-                continue
-            try:
-                spec.check(prm.value)
-            except config.ConfigError as err:
-                self._rejected = str(err)
-                return SetParametersResult(successful=False, reason=str(err))
-        return SetParametersResult(successful=True)
+        return params
 
     def _on_params_set(self, params: list[Parameter]) -> None:
         if not hasattr(self, 'params'):  # still declaring
             return
-        names = {prm.name for prm in params if prm.name in _PARAMS}
+        names = {prm.name for prm in params if prm.name in SCHEMA_BY_NAME}
         for prm in params:
-            if prm.name in _PARAMS:
-                self.params[prm.name] = _PARAMS[prm.name].check(prm.value)
-        if 'publish_tf' in names:
-            self._update_tf()
-        if 'path_max_poses' in names:
-            self._path_poses = deque(self._path_poses, maxlen=self.params['path_max_poses'])
+            if prm.name in SCHEMA_BY_NAME:
+                self.params[prm.name] = SCHEMA_BY_NAME[prm.name].check(prm.value)
+        if names & _OUTPUT_PARAMS:
+            self._outputs.update()
         if self.vo is None or not names:
             return
         if names - set(config.MOUNTING_PARAMS) - _OUTPUT_PARAMS:
@@ -239,31 +161,15 @@ class PlanarVoNode(Node):
     def _rebuild(self) -> None:
         old, self.vo = self.vo, VisualOdometry.from_params(self.camera, self.params)
         if old is not None:
-            self.vo.pose, self.vo.pose_covariance = old.pose, old.pose_covariance
+            self.vo.set_pose(old.pose, old.pose_covariance)
             self.vo.counters = old.counters
 
     # ---------------------------------------------------------------- input
     def _warn(self, text: str, *, error: bool = False) -> None:
-        """Log ``text`` at once, then the same cause at most every _WARN_EVERY s with a count.
-
-        The cause is the text with its numbers stripped, so the same problem with other
-        numbers is throttled and a different problem is always reported at once.
-        """
-        cause = _NUMBER.sub('#', text)
-        now = time.monotonic()
-        last, count = self._warned.pop(cause, (-1e9, 0))
-        if now - last >= _WARN_EVERY:
-            more = f' (and {count} more times)' if count else ''
-            if error:  # rclpy ties a severity to each call site: two calls, not one
-                self.get_logger().error(text + more)
-            else:
-                self.get_logger().warning(text + more)
-            last, count = now, 0
-        else:
-            count += 1
-        self._warned[cause] = (last, count)  # most recent last
-        if len(self._warned) > _WARN_CAUSES:
-            self._warned.popitem(last=False)
+        """Log ``text``, throttled per cause (see :class:`WarningThrottle`)."""
+        # rclpy ties a severity to each call site: two calls, not one
+        log = self.get_logger().error if error else self.get_logger().warning
+        self._throttle(text, time.monotonic(), log)
 
     def _unexpected(self, where: str, err: Exception) -> None:
         """A bug, not bad input: one ERROR line with the exception, and a counter."""
@@ -384,49 +290,23 @@ class PlanarVoNode(Node):
         if self.vo is None:
             self._warn('set_pose ignored: no camera_info yet')
             return
-        self._path_poses.clear()
+        self._outputs.clear_path()
         self.vo.set_pose(pose, cov)
         self.get_logger().info(f'pose set to x {pose[0]:.3f} m, y {pose[1]:.3f} m, '
                                f'yaw {pose[2]:.4f} rad')
 
     # ---------------------------------------------------------------- output
     def _publish(self, header, gray, result) -> None:
-        p = self.params
-        odom = None
-        if result.status != 'duplicate':  # tf2 rejects a repeated stamp (TF_REPEATED_DATA)
-            # Odometry first: the bookkeeping below is not part of its latency.
-            odom = messages.odometry_from_result(result, header.stamp, p['odom_frame'],
-                                                 p['base_frame'], Odometry)
-            self._odom_pub.publish(odom)
+        # Odometry first: the bookkeeping below is not part of its latency.
+        odom = self._outputs.publish_odometry(header, result)
         self._health.frame_done(result)
         if result.message and result.status not in ('ok', 'first'):
             self._warn(f'{result.status}: {result.message}')
-        if odom is None:
-            return
-        if self._tf is not None and p['publish_tf']:
-            self._tf.sendTransform(messages.transform_from_result(
-                result, header.stamp, p['odom_frame'], p['base_frame']))
-        if p['publish_path']:
-            self._append_path(odom)
-        if p['publish_debug_image'] and self._debug_pub.get_subscription_count():
-            self._debug_pub.publish(messages.debug_image(gray, result, header, Image))
-
-    def _append_path(self, odom: Odometry) -> None:
-        """Keep a pose every ~5 cm or ~3 deg, at most path_max_poses; publish if listened to."""
-        poses = self._path_poses
-        pos = odom.pose.pose.position
-        if poses:
-            last = poses[-1].pose
-            moved = abs(pos.x - last.position.x) + abs(pos.y - last.position.y)
-            turned = abs(odom.pose.pose.orientation.z - last.orientation.z) * 2
-            if moved < _PATH_STEP and turned < _PATH_STEP:
-                return
-        poses.append(PoseStamped(header=odom.header, pose=odom.pose.pose))
-        if self._path_pub.get_subscription_count():
-            self._path_pub.publish(Path(header=odom.header, poses=list(poses)))
+        if odom is not None:
+            self._outputs.publish_extras(odom, header, gray, result)
 
     def _on_reset(self, request, response):
-        self._path_poses.clear()
+        self._outputs.clear_path()
         try:
             if self.vo is not None:
                 self.vo.reset()
@@ -463,23 +343,6 @@ class PlanarVoNode(Node):
 
 def _stamp_ns(stamp) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
-def _descriptor(spec: config.Param, *, loose: bool = False) -> ParameterDescriptor:
-    """The parameter's descriptor; ``loose``: any type and no range (declaration only)."""
-    desc = ParameterDescriptor(description=spec.description, read_only=spec.read_only,
-                               dynamic_typing=loose)
-    if not loose:
-        desc.type = Parameter.Type.from_parameter_value(spec.default).value
-    if isinstance(spec.default, float) and not loose:
-        desc.floating_point_range = [FloatingPointRange(
-            from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
-    elif isinstance(spec.default, int) and not isinstance(spec.default, bool) and not loose:
-        desc.integer_range = [IntegerRange(
-            from_value=int(spec.low), to_value=int(spec.high), step=1)]
-    elif spec.choices:
-        desc.additional_constraints = 'one of: ' + ', '.join(spec.choices)
-    return desc
 
 
 def main(args=None) -> int:
