@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, make_dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -16,9 +17,9 @@ import yaml
 
 from planar_vo.core.geometry.camera import Mounting
 
-__all__ = ['Param', 'SCHEMA', 'ConfigError', 'defaults', 'validate', 'load_params_file',
-           'read_params_yaml', 'params_section', 'MOUNTING_PARAMS', 'schema_markdown',
-           'mounting_from_params']
+__all__ = ['Param', 'SCHEMA', 'Params', 'make_params', 'ConfigError', 'defaults', 'validate',
+           'load_params_file', 'read_params_yaml', 'params_section', 'MOUNTING_PARAMS',
+           'schema_markdown', 'mounting_from_params']
 
 NODE_NAME = 'planar_vo'
 
@@ -160,6 +161,39 @@ SCHEMA: tuple[Param, ...] = (
 MOUNTING_PARAMS = ('camera_height', 'camera_x', 'camera_y', 'camera_roll', 'camera_pitch',
                    'camera_yaw')
 _BY_NAME = {p.name: p for p in SCHEMA}
+
+
+class _ParamsMethods:
+    """What every :data:`Params` object can do besides holding the values."""
+
+    def __getitem__(self, name: str) -> Any:
+        """``params['camera_x']``, as from the dict of a params file."""
+        return getattr(self, name)
+
+    def replace(self, **changes: Any) -> Any:
+        """A copy with ``changes`` checked against the schema (ConfigError if invalid)."""
+        unknown = sorted(set(changes) - set(_BY_NAME))
+        if unknown:
+            raise ConfigError(f'unknown parameter(s): {", ".join(unknown)}')
+        return replace(self, **{name: _BY_NAME[name].check(v) for name, v in changes.items()})
+
+    def as_dict(self) -> dict[str, Any]:
+        """Every value by name."""
+        return asdict(self)
+
+
+#: Frozen, typed values of every parameter in :data:`SCHEMA` (attributes by name; also
+#: ``params['name']``); build one with :func:`make_params`.
+Params = make_dataclass('Params', [(p.name, type(p.default)) for p in SCHEMA],
+                        bases=(_ParamsMethods,), frozen=True)
+Params.__module__ = __name__
+
+
+def make_params(values: Mapping[str, Any] | None = None) -> Any:
+    """:data:`Params` from the defaults overlaid with checked ``values`` (see validate)."""
+    if isinstance(values, Params):
+        return values
+    return Params(**validate(dict(values or {})))
 
 
 def defaults() -> dict[str, Any]:

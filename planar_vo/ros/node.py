@@ -132,7 +132,7 @@ class PlanarVoNode(Node):
             f'publishing {self._outputs.odom_pub.topic_name}')
 
     # ---------------------------------------------------------------- parameters
-    def _declare_parameters(self) -> dict:
+    def _declare_parameters(self) -> config.Params:
         params = declare_schema(self)
         unknown = sorted(set(self._parameter_overrides) - set(SCHEMA_BY_NAME))  # read only
         for name in unknown:
@@ -144,9 +144,9 @@ class PlanarVoNode(Node):
         if not hasattr(self, 'params'):  # still declaring
             return
         names = {prm.name for prm in params if prm.name in SCHEMA_BY_NAME}
-        for prm in params:
-            if prm.name in SCHEMA_BY_NAME:
-                self.params[prm.name] = SCHEMA_BY_NAME[prm.name].check(prm.value)
+        self.params = self.params.replace(
+            **{prm.name: prm.value for prm in params if prm.name in SCHEMA_BY_NAME})
+        self._outputs.params = self.params
         if names & _OUTPUT_PARAMS:
             self._outputs.update()
         if self.vo is None or not names:

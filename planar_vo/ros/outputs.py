@@ -13,6 +13,7 @@ from nav_msgs.msg import Odometry, Path
 from rclpy.node import Node
 from sensor_msgs.msg import Image
 
+from planar_vo.core import config
 from planar_vo.core.odometry import FrameResult, FrameStatus
 from planar_vo.ros import messages
 
@@ -24,9 +25,9 @@ _PATH_STEP = 0.05  # m or rad between poses appended to ~/path
 class OdometryOutputs:
     """The node's publishers of one frame's odometry, as the output parameters ask."""
 
-    def __init__(self, node: Node, params: dict[str, Any]) -> None:
+    def __init__(self, node: Node, params: config.Params) -> None:
         self._node = node
-        self.params = params  # the node's live parameter values (changed in place by it)
+        self.params = params  # the node's parameter values: it sets new ones on a change
         self.odom_pub = node.create_publisher(Odometry, 'odom', 10)
         self._path_pub = node.create_publisher(Path, '~/path', 1)
         self._debug_pub = node.create_publisher(Image, '~/debug_image', 1)

@@ -8,8 +8,6 @@ then the value is made a float if it should be, and the typed, ranged descriptor
 
 from __future__ import annotations
 
-from typing import Any
-
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -31,8 +29,8 @@ class StartupError(Exception):
     """An invalid start-up parameter: reported as one line, exit status 2."""
 
 
-def declare_schema(node: Node) -> dict[str, Any]:
-    """Declare every schema parameter on ``node``; their checked values by name.
+def declare_schema(node: Node) -> config.Params:
+    """Declare every schema parameter on ``node``; their checked values.
 
     Also registers the callbacks that accept integers for floats and refuse out-of-range
     values at run time with the schema's reason. Raises StartupError for a bad start-up
@@ -65,7 +63,8 @@ def declare_schema(node: Node) -> dict[str, Any]:
             node.set_parameters([Parameter(spec.name, value=float(value))])
         if not spec.read_only:  # rclpy keeps read-only descriptors as declared
             node.set_descriptor(spec.name, _descriptor(spec))
-    return {s.name: s.check(node.get_parameter(s.name).value) for s in config.SCHEMA}
+    return config.Params(**{s.name: s.check(node.get_parameter(s.name).value)
+                            for s in config.SCHEMA})
 
 
 def _ints_to_floats(params: list[Parameter]) -> list[Parameter]:

@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import copy
 import time
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
+from planar_vo.core import config
 from planar_vo.core.config import mounting_from_params
 from planar_vo.core.estimation.baselines import homography_motion
 from planar_vo.core.estimation.calibration import (
@@ -97,8 +99,10 @@ class VisualOdometry:
         self.reset()
 
     @classmethod
-    def from_params(cls, camera: CameraModel, params: Any) -> VisualOdometry:
+    def from_params(cls, camera: CameraModel,
+                    params: config.Params | Mapping[str, Any]) -> VisualOdometry:
         """Build from the parameter schema's values (see :mod:`planar_vo.core.config`)."""
+        params = config.make_params(params)
         tracker = Tracker(
             max_features=params['max_features'], quality_level=params['quality_level'],
             min_distance=params['min_distance'], window=params['klt_window'],
