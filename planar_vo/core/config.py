@@ -15,6 +15,7 @@ from typing import Any
 
 import yaml
 
+from planar_vo.core.errors import ConfigError
 from planar_vo.core.geometry.camera import Mounting
 
 __all__ = ['Param', 'SCHEMA', 'Params', 'make_params', 'ConfigError', 'defaults', 'validate',
@@ -22,10 +23,6 @@ __all__ = ['Param', 'SCHEMA', 'Params', 'make_params', 'ConfigError', 'defaults'
            'schema_markdown', 'mounting_from_params']
 
 NODE_NAME = 'planar_vo'
-
-
-class ConfigError(ValueError):
-    """A parameter file or value that cannot be used."""
 
 
 @dataclass(frozen=True)

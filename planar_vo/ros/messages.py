@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from planar_vo.core.geometry.camera import MAX_IMAGE_SIDE, CameraModel, CameraModelError
+from planar_vo.ros.errors import ImageError
 
 __all__ = ['ImageError', 'UNOBSERVED_VARIANCE', 'SUPPORTED_ENCODINGS', 'image_to_gray',
            'compressed_to_gray', 'camera_info_to_model', 'stamp_to_seconds', 'covariance_6x6',
@@ -32,10 +33,6 @@ __all__ = ['ImageError', 'UNOBSERVED_VARIANCE', 'SUPPORTED_ENCODINGS', 'image_to
 UNOBSERVED_VARIANCE = 1e6  # z, roll, pitch (and their rates): unobserved by a planar model
 _MIN_VARIANCE = 1e-12  # observed variances never reach 0
 _PLANAR_INDEX = (0, 1, 5)  # x, y, yaw within (x, y, z, roll, pitch, yaw)
-
-
-class ImageError(ValueError):
-    """An image message that cannot be turned into a grey image (with the reason)."""
 
 
 # encoding -> (channels, bytes per channel, cv2 conversion code to grey or None)

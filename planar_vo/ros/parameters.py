@@ -19,14 +19,11 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from planar_vo.core import config
+from planar_vo.ros.errors import StartupError
 
 __all__ = ['StartupError', 'declare_schema', 'SCHEMA_BY_NAME']
 
 SCHEMA_BY_NAME = {p.name: p for p in config.SCHEMA}
-
-
-class StartupError(Exception):
-    """An invalid start-up parameter: reported as one line, exit status 2."""
 
 
 def declare_schema(node: Node) -> config.Params:

@@ -18,16 +18,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planar_vo.core.errors import PoseEstimationError
 from planar_vo.core.geometry.camera import CameraModel, Mounting, level_to_base
 from planar_vo.core.geometry.se2 import circular_motion
 from planar_vo.core.geometry.solvers import homography_npoint, paper_to_planar
 
 __all__ = ['TransferModel', 'RansacResult', 'PoseEstimationError', 'estimate_motion',
            'refine_motion', 'motion_covariance', 'transfer_errors']
-
-
-class PoseEstimationError(RuntimeError):
-    """Too few usable correspondences to estimate a motion."""
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from planar_vo.core.errors import CameraModelError
+
 __all__ = ['CameraModel', 'CameraModelError', 'MAX_IMAGE_SIDE', 'Mounting', 'level_to_base',
            'rays_through', 'BODY_FROM_OPTICAL']
 
@@ -36,10 +38,6 @@ _FISHEYE_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12
 def rays_through(normalized: np.ndarray) -> np.ndarray:
     """Unnormalized rays ``[x, y, 1]`` (N, 3) through normalized image points (N, 2)."""
     return np.concatenate([normalized, np.ones((len(normalized), 1))], axis=1)
-
-
-class CameraModelError(ValueError):
-    """The calibration cannot be used (uncalibrated, unknown model, wrong coefficients)."""
 
 
 def _rotation_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
