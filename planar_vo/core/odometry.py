@@ -21,13 +21,13 @@ from planar_vo.core.estimation.attitude import (
     refine_with_attitude,
     tilted_mounting,
 )
-from planar_vo.core.estimation.baselines import homography_motion
 from planar_vo.core.estimation.calibration import (
     MountingCalibrator,
     MountingEstimate,
     calibrated_params,
     mounting_advice,
 )
+from planar_vo.core.estimation.opencv_motion import homography_motion
 from planar_vo.core.estimation.ransac import (
     PoseEstimationError,
     RansacResult,

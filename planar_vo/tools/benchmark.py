@@ -5,9 +5,8 @@ Prints ratios, never absolute pass/fail timings (machines are shared and noisy):
   (5-point) and ``findHomography + decomposeHomographyMat`` (4-point), on the same
   correspondences of every frame of the bag;
 - a whole offline frame (bag decode included) vs the time its tracker takes (KLT from the
-  predicted positions, and detection), and
-  vs the plain OpenCV pipeline (:class:`planar_vo.core.estimation.baselines.OpenCVReference`,
-  decode-free);
+  predicted positions, and detection), and vs the plain OpenCV pipeline
+  (:class:`planar_vo.tools.experiments.opencv_pipeline.OpenCVReference`, decode-free);
 - with ``--live``, the node's median latency over DDS vs its own median compute on the same
   frames (as its /diagnostics report it), and the highest frame rate it keeps up with;
 - the accuracy of the run (planar_vo and the reference), so a speed gain that costs
@@ -27,11 +26,7 @@ import numpy as np
 
 from planar_vo.core import evaluate
 from planar_vo.core.config import ConfigError, defaults, load_params_file
-from planar_vo.core.estimation.baselines import (
-    OpenCVReference,
-    essential_motion,
-    homography_motion,
-)
+from planar_vo.core.estimation.opencv_motion import essential_motion, homography_motion
 from planar_vo.core.estimation.ransac import PoseEstimationError, TransferModel, estimate_motion
 from planar_vo.core.frontend.motion_search import GroundMotionSearch
 from planar_vo.core.frontend.tracker import Tracker
@@ -48,6 +43,7 @@ from planar_vo.ros.messages import (
     planar_pose,
     stamp_to_seconds,
 )
+from planar_vo.tools.experiments.opencv_pipeline import OpenCVReference
 from planar_vo.tools.progress import Progress
 
 __all__ = ['main', 'run_benchmark']

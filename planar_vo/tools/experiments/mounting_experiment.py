@@ -7,9 +7,8 @@ and on a rigid one along the same path, and run through the odometry core:
 - the sprung body with the attitude estimated and the body's pivot configured, the mounting
   kept; the same with self-calibration; OpenCV's per-pair homography on the same tracks;
 - the plain OpenCV pipeline on the same sprung frames (its own tracking over the whole image,
-  :class:`planar_vo.core.estimation.baselines.OpenCVReference`): the route the issue measured the
-  product
-  against, before any of planar_vo's front end.
+  :class:`planar_vo.tools.experiments.opencv_pipeline.OpenCVReference`): the route the issue
+  measured the product against, before any of planar_vo's front end.
 
 Every run is configured with the true mounting and tracks ``TRACKS`` features (what the
 README advises for a sprung body; the same tracks for every variant, so OpenCV's homography and
@@ -29,9 +28,9 @@ import numpy as np
 
 from planar_vo import synth
 from planar_vo.core import config, evaluate
-from planar_vo.core.estimation.baselines import OpenCVReference
 from planar_vo.core.geometry.camera import CameraModel
 from planar_vo.core.odometry import VisualOdometry, compose, mounting_from_params
+from planar_vo.tools.experiments.opencv_pipeline import OpenCVReference
 from planar_vo.tools.progress import Progress
 
 __all__ = ['VARIANTS', 'plain_opencv_path', 'run_drive', 'main']
