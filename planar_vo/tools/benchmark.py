@@ -24,13 +24,13 @@ from typing import Any
 
 import numpy as np
 
-from planar_vo.core import evaluate
 from planar_vo.core.config import ConfigError, defaults, load_params_file
 from planar_vo.core.estimation.opencv_motion import essential_motion, homography_motion
 from planar_vo.core.estimation.ransac import PoseEstimationError, TransferModel, estimate_motion
 from planar_vo.core.frontend.motion_search import GroundMotionSearch
 from planar_vo.core.frontend.tracker import Tracker
 from planar_vo.core.geometry.camera import rays_through
+from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry, compose
 from planar_vo.io.bag import BagError, open_reader, typestore
 from planar_vo.io.resources import default_bag, default_params
@@ -227,7 +227,7 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
     accuracy = {}
     if all(stamp in truth for stamp in stamps):
         truth_poses = np.array([truth[stamp] for stamp in stamps])
-        accuracy = {name: {key: value for key, value in evaluate.metrics(
+        accuracy = {name: {key: value for key, value in metrics(
             np.array(estimate), truth_poses).items() if key in _ACCURACY_KEYS}
             for name, estimate in (('planar_vo', poses), ('opencv_reference', reference_poses),
                                    ('planar_vo_attitude', attitude_poses))}

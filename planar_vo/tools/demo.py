@@ -15,12 +15,13 @@ from typing import Any
 
 import numpy as np
 
-from planar_vo.core import evaluate
 from planar_vo.core.config import ConfigError, load_params_file
+from planar_vo.core.metrics import associate, metrics
 from planar_vo.io.bag import BagError
 from planar_vo.io.resources import default_bag, default_params
 from planar_vo.ros.messages import planar_pose
 from planar_vo.tools.live_session import BagStream, LiveError, LiveSession
+from planar_vo.tools.plots import plot_trajectories
 from planar_vo.tools.replay import replay
 
 __all__ = ['main', 'run_demo']
@@ -50,20 +51,20 @@ def run_demo(bag: Path, params_file: Path, *, plot: Path | None = None,
     }
     offline = replay(bag, params)
     off_stamps, off_poses = offline.estimate.arrays()
-    ia, ib = evaluate.associate(np.array(got), off_stamps)
+    ia, ib = associate(np.array(got), off_stamps)
     if len(ia):
         out['live_vs_replay_max_position_difference_m'] = float(
             np.max(np.hypot(*(live[ia, :2] - off_poses[ib, :2]).T)))
     trajectories = {'planar_vo_node (live, DDS)': live, 'planar_vo_replay': off_poses}
     if stream.truth:
         truth_stamps = np.array(sorted(stream.truth))
-        ia, ib = evaluate.associate(np.array(got), truth_stamps)
+        ia, ib = associate(np.array(got), truth_stamps)
         truth = np.array([stream.truth[s] for s in truth_stamps])
         if len(ia) > 1:
-            out['accuracy'] = evaluate.metrics(live[ia], truth[ib])
+            out['accuracy'] = metrics(live[ia], truth[ib])
         trajectories = {'ground truth': truth, **trajectories}
     if plot:
-        evaluate.plot_trajectories(plot, trajectories, title=f'{bag.name}: node over DDS')
+        plot_trajectories(plot, trajectories, title=f'{bag.name}: node over DDS')
         out['plot'] = str(plot)
     return out
 

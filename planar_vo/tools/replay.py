@@ -17,12 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from planar_vo.core import evaluate
 from planar_vo.core.config import ConfigError, defaults, load_params_file
 from planar_vo.core.estimation.calibration import MountingEstimate
 from planar_vo.core.geometry.camera import CameraModelError
+from planar_vo.core.metrics import associate, metrics
 from planar_vo.core.odometry import FrameResult, VisualOdometry
 from planar_vo.io.bag import BagError, BagWriter, open_reader
+from planar_vo.io.tum import write_tum
 from planar_vo.ros.messages import (
     ImageError,
     camera_info_to_model,
@@ -33,6 +34,7 @@ from planar_vo.ros.messages import (
     stamp_to_seconds,
 )
 from planar_vo.ros.pairing import Paired, Pairing
+from planar_vo.tools.plots import plot_trajectories
 from planar_vo.tools.progress import Progress
 
 __all__ = ['main', 'replay', 'ReplayError', 'Trajectory']
@@ -259,9 +261,9 @@ def report(result: ReplayResult) -> dict[str, Any]:
     stamps, poses = result.estimate.arrays()
     gt_stamps, gt_poses = result.truth.arrays()
     if len(gt_stamps) and len(stamps):
-        ia, ib = evaluate.associate(stamps, gt_stamps)
+        ia, ib = associate(stamps, gt_stamps)
         if len(ia) > 1:
-            out['accuracy'] = evaluate.metrics(poses[ia], gt_poses[ib])
+            out['accuracy'] = metrics(poses[ia], gt_poses[ib])
     learned = result.mounting
     if learned is not None and learned.seconds > 0:  # self-calibration ran
         out['mounting'] = {'seconds': learned.seconds, **{
@@ -288,14 +290,14 @@ def main(argv: list[str] | None = None) -> int:
                         progress=not args.json and sys.stderr.isatty())
         summary = report(result)
         if args.tum:
-            evaluate.write_tum(f'{args.tum}_estimate.txt', *result.estimate.arrays())
+            write_tum(f'{args.tum}_estimate.txt', *result.estimate.arrays())
             if len(result.truth.stamps):
-                evaluate.write_tum(f'{args.tum}_truth.txt', *result.truth.arrays())
+                write_tum(f'{args.tum}_truth.txt', *result.truth.arrays())
         if args.plot:
             trajectories = {'estimate (planar_vo)': result.estimate.arrays()[1]}
             if len(result.truth.stamps):
                 trajectories = {'ground truth': result.truth.arrays()[1], **trajectories}
-            evaluate.plot_trajectories(args.plot, trajectories, title=Path(args.bag).name)
+            plot_trajectories(args.plot, trajectories, title=Path(args.bag).name)
             summary['plot'] = str(args.plot)
     except (BagError, ConfigError, ReplayError, OSError) as err:
         print(f'planar_vo_replay: error: {err}', file=sys.stderr)

@@ -27,8 +27,9 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from planar_vo import synth
-from planar_vo.core import config, evaluate
+from planar_vo.core import config
 from planar_vo.core.geometry.camera import CameraModel
+from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry, compose, mounting_from_params
 from planar_vo.tools.experiments.opencv_pipeline import OpenCVReference
 from planar_vo.tools.progress import Progress
@@ -111,7 +112,7 @@ def run_drive(scenario: str, frames: int, seed: int, rate: float = 30.0,
                 for k, image in enumerate(images):
                     poses.append(vo.process(image, k / rate).pose)
                     tick()
-            met = evaluate.metrics(np.array(poses), np.c_[traj.x, traj.y, traj.yaw])
+            met = metrics(np.array(poses), np.c_[traj.x, traj.y, traj.yaw])
             out[name] = {key: met[key] for key in
                          ('t_rel_percent', 'r_rel_deg_per_100m', 'scale_ratio',
                           'path_length_m')}

@@ -40,6 +40,7 @@ from planar_vo.core.geometry.solvers import (
     homography_2point,
     homography_npoint,
 )
+from planar_vo.tools.plots import pyplot
 
 __all__ = ['SETUP', 'SOLVERS', 'Trials', 'make_trials', 'estimate_all', 'run_experiment',
            'format_table', 'plot_fig5', 'main']
@@ -375,11 +376,7 @@ def format_table(results: Sequence[dict]) -> str:
 
 def plot_fig5(phis: dict[str, np.ndarray], sigma: float, path: str) -> None:
     """Histograms of estimated phi like the paper's Fig. 5 (1-point vs 2-point per model)."""
-    import matplotlib
-
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     truth = TRUE_MOTION['phi']
     finite = np.concatenate([v[np.isfinite(v)] for v in phis.values()])
     half = float(np.clip(np.percentile(np.abs(finite - truth), 90), 0.02, 0.5))
