@@ -53,7 +53,7 @@ def test_a_node_that_dies_is_reported_at_once(dds_env):
     instead of waiting out its timeout (a bench once waited over 10 minutes on a dead node)."""
     import signal
 
-    from planar_vo.tools.live_session import LiveError
+    from planar_vo.tools.errors import LiveError
     stream = BagStream.read(DEFAULT_BAG, limit=2)
     session = LiveSession(CONFIG, image_type=stream.image_type)
     try:

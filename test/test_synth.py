@@ -11,7 +11,8 @@ import pytest
 from planar_vo import synth
 from planar_vo.core.geometry.camera import Mounting
 from planar_vo.io import resources
-from planar_vo.io.bag import BagError, open_reader
+from planar_vo.io.bag import open_reader
+from planar_vo.io.errors import BagError
 from test.conftest import synth_camera_model
 
 SYNTH = resources.executable('planar_vo_synth')

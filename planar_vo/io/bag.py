@@ -17,7 +17,8 @@ Reading::
         for conn, stamp_ns, raw in reader.messages():
             msg = reader.deserialize(raw, conn.msgtype)
 
-Missing paths, directories that are not bags and corrupt bags raise :class:`BagError`.
+Missing paths, directories that are not bags and corrupt bags raise
+:class:`planar_vo.io.errors.BagError`.
 """
 
 from __future__ import annotations
@@ -32,11 +33,9 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.typesys import Stores, get_typestore
 
-__all__ = ['BagError', 'BagWriter', 'open_reader', 'typestore', 'write_bag']
+from planar_vo.io.errors import BagError
 
-
-class BagError(Exception):
-    """A bag cannot be read or written (missing, not a bag, corrupt, already exists)."""
+__all__ = ['BagWriter', 'open_reader', 'typestore', 'write_bag']
 
 
 @functools.cache

@@ -185,7 +185,7 @@ def main(argv=None) -> int:
                                 cx=args.cx, cy=args.cy,
                                 dist=tuple(args.dist) if args.dist else None,
                                 distortion_model=args.distortion_model)
-    from planar_vo.io.bag import BagError
+    from planar_vo.io.errors import BagError
 
     try:
         res = generate_bag(out, args.scenario, args.frames, args.seed, rate=args.rate,

@@ -32,7 +32,8 @@ from planar_vo.core.frontend.tracker import Tracker
 from planar_vo.core.geometry.camera import rays_through
 from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry, compose
-from planar_vo.io.bag import BagError, open_reader, typestore
+from planar_vo.io.bag import open_reader, typestore
+from planar_vo.io.errors import BagError
 from planar_vo.io.resources import default_bag, default_params
 from planar_vo.ros.health import RECENT_FRAMES
 from planar_vo.ros.messages import (
@@ -43,6 +44,7 @@ from planar_vo.ros.messages import (
     planar_pose,
     stamp_to_seconds,
 )
+from planar_vo.tools.errors import LiveError
 from planar_vo.tools.experiments.opencv_pipeline import OpenCVReference
 from planar_vo.tools.progress import Progress
 
@@ -393,7 +395,6 @@ def main(argv: list[str] | None = None) -> int:
         result = run_benchmark(bag, params, frames=args.frames,
                                progress=sys.stderr.isatty())
         if args.live:
-            from planar_vo.tools.live_session import LiveError
             try:
                 live = run_live_benchmark(
                     bag, Path(args.node_params) if args.node_params else default_params())

@@ -29,8 +29,9 @@ from planar_vo.core.config import (
     validate,
 )
 from planar_vo.core.estimation.calibration import MountingEstimate
-from planar_vo.io.bag import BagError
-from planar_vo.tools.replay import ReplayError, replay
+from planar_vo.io.errors import BagError
+from planar_vo.tools.errors import CalibrationError, ReplayError
+from planar_vo.tools.replay import replay
 
 __all__ = ['main', 'calibrate']
 
@@ -38,10 +39,6 @@ _ANGLES = ('camera_pitch', 'camera_roll', 'camera_yaw')
 # A value whose standard deviation is above this was not determined by the drive.
 _UNDETERMINED = {'camera_pitch': math.radians(1.0), 'camera_roll': math.radians(1.0),
                  'camera_yaw': math.radians(1.0), 'camera_x': 0.2}
-
-
-class CalibrationError(RuntimeError):
-    """The drive cannot calibrate anything (too short, no motion)."""
 
 
 def calibrate(bag: str | Path, params: dict[str, Any], *, image_topic: str | None = None,

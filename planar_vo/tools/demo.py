@@ -17,10 +17,11 @@ import numpy as np
 
 from planar_vo.core.config import ConfigError, load_params_file
 from planar_vo.core.metrics import associate, metrics
-from planar_vo.io.bag import BagError
+from planar_vo.io.errors import BagError
 from planar_vo.io.resources import default_bag, default_params
 from planar_vo.ros.messages import planar_pose
-from planar_vo.tools.live_session import BagStream, LiveError, LiveSession
+from planar_vo.tools.errors import LiveError
+from planar_vo.tools.live_session import BagStream, LiveSession
 from planar_vo.tools.plots import plot_trajectories
 from planar_vo.tools.replay import replay
 

@@ -20,16 +20,14 @@ from typing import Any
 
 import numpy as np
 
-from planar_vo.io.bag import BagError, open_reader
+from planar_vo.io.bag import open_reader
+from planar_vo.io.errors import BagError
 from planar_vo.io.resources import executable
 from planar_vo.ros.messages import planar_pose, stamp_to_seconds
+from planar_vo.tools.errors import LiveError
 from planar_vo.tools.replay import IMAGE_TYPES
 
-__all__ = ['BagStream', 'LiveSession', 'LiveError', 'local_dds_env']
-
-
-class LiveError(RuntimeError):
-    """The node did not start, answer, or connect in time."""
+__all__ = ['BagStream', 'LiveSession', 'local_dds_env']
 
 
 def local_dds_env() -> dict[str, str]:

@@ -22,7 +22,8 @@ from planar_vo.core.estimation.calibration import MountingEstimate
 from planar_vo.core.geometry.camera import CameraModelError
 from planar_vo.core.metrics import associate, metrics
 from planar_vo.core.odometry import FrameResult, VisualOdometry
-from planar_vo.io.bag import BagError, BagWriter, open_reader
+from planar_vo.io.bag import BagWriter, open_reader
+from planar_vo.io.errors import BagError
 from planar_vo.io.tum import write_tum
 from planar_vo.ros.messages import (
     ImageError,
@@ -34,18 +35,15 @@ from planar_vo.ros.messages import (
     stamp_to_seconds,
 )
 from planar_vo.ros.pairing import Paired, Pairing
+from planar_vo.tools.errors import ReplayError
 from planar_vo.tools.plots import plot_trajectories
 from planar_vo.tools.progress import Progress
 
-__all__ = ['main', 'replay', 'ReplayError', 'Trajectory']
+__all__ = ['main', 'replay', 'Trajectory']
 
 IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
 INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
 ODOM_TYPE = 'nav_msgs/msg/Odometry'
-
-
-class ReplayError(RuntimeError):
-    """The bag cannot be replayed as asked (no images, ambiguous topics, ...)."""
 
 
 @dataclass

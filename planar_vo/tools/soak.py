@@ -13,9 +13,10 @@ import sys
 import time
 from pathlib import Path
 
-from planar_vo.io.bag import BagError
-from planar_vo.io.resources import ResourceError, default_bag, default_params
-from planar_vo.tools.live_session import BagStream, LiveError, LiveSession
+from planar_vo.io.errors import BagError, ResourceError
+from planar_vo.io.resources import default_bag, default_params
+from planar_vo.tools.errors import LiveError
+from planar_vo.tools.live_session import BagStream, LiveSession
 
 __all__ = ['main']
 
