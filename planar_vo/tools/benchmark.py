@@ -33,7 +33,7 @@ from planar_vo.core.geometry.camera import rays_through
 from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry, compose
 from planar_vo.io.bag import open_reader, typestore
-from planar_vo.io.errors import BagError
+from planar_vo.io.errors import BagError, ResourceError
 from planar_vo.io.resources import default_bag, default_params
 from planar_vo.ros.health import RECENT_FRAMES
 from planar_vo.ros.messages import (
@@ -44,12 +44,14 @@ from planar_vo.ros.messages import (
     planar_pose,
     stamp_to_seconds,
 )
+from planar_vo.tools.cli import Parser, run
 from planar_vo.tools.errors import LiveError
 from planar_vo.tools.experiments.opencv_pipeline import OpenCVReference
 from planar_vo.tools.progress import Progress
 
 __all__ = ['main', 'run_benchmark']
 
+PROG = 'planar_vo_bench'
 _ACCURACY_KEYS = ('path_length_m', 't_rel_percent', 'r_rel_deg_per_100m', 'ate_rmse_m',
                   'scale_ratio')
 # max_features the README advises for a sprung body (estimate_attitude): its cost is timed.
@@ -370,8 +372,8 @@ def _ground_pairs(vo: VisualOdometry, ref_px: np.ndarray,
 
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns the exit code."""
-    parser = argparse.ArgumentParser(
-        prog='planar_vo_bench',
+    parser = Parser(
+        prog=PROG,
         description='Time the planar_vo pipeline against OpenCV baselines and KLT tracking '
                     'on one bag, in one run; prints medians and the ratios the design bars '
                     'are about.')
@@ -387,32 +389,29 @@ def main(argv: list[str] | None = None) -> int:
                              'config/planar_vo.yaml)')
     parser.add_argument('--json', action='store_true', help='print one JSON object')
     args = parser.parse_args(argv)
-    try:
-        params = load_params_file(args.params) if args.params else defaults()
-        if args.frames is not None and args.frames < 2:
-            raise ConfigError('--frames must be at least 2')
-        bag = Path(args.bag) if args.bag else default_bag()
-        result = run_benchmark(bag, params, frames=args.frames,
-                               progress=sys.stderr.isatty())
-        if args.live:
-            try:
-                live = run_live_benchmark(
-                    bag, Path(args.node_params) if args.node_params else default_params())
-            except LiveError as err:
-                raise OSError(str(err)) from None
-            at_30 = next((r for r in live['rates'] if r['rate_hz'] == 30.0), None)
-            if at_30 and 'median_latency_over_median_compute' in at_30:
-                result['ratios']['node_median_latency_at_30hz_over_its_compute'] = at_30[
-                    'median_latency_over_median_compute']
-                result['bars']['node_median_latency_at_30hz_over_its_compute'] = '<= 1.3'
-            if at_30 and 'latency_over_compute' in at_30:  # the tails of a busy machine too
-                result['ratios']['node_mean_latency_at_30hz_over_its_compute'] = at_30[
-                    'latency_over_compute']
-                result['bars']['node_mean_latency_at_30hz_over_its_compute'] = 'no bar'
-            result['live'] = live
-    except (BagError, ConfigError, ImageError, OSError) as err:
-        print(f'planar_vo_bench: error: {err}', file=sys.stderr)
-        return 2
+    return run(PROG, lambda: _main(args),
+               (BagError, ConfigError, ImageError, LiveError, ResourceError, OSError))
+
+
+def _main(args: argparse.Namespace) -> int:
+    params = load_params_file(args.params) if args.params else defaults()
+    if args.frames is not None and args.frames < 2:
+        raise ConfigError('--frames must be at least 2')
+    bag = Path(args.bag) if args.bag else default_bag()
+    result = run_benchmark(bag, params, frames=args.frames, progress=sys.stderr.isatty())
+    if args.live:
+        live = run_live_benchmark(
+            bag, Path(args.node_params) if args.node_params else default_params())
+        at_30 = next((r for r in live['rates'] if r['rate_hz'] == 30.0), None)
+        if at_30 and 'median_latency_over_median_compute' in at_30:
+            result['ratios']['node_median_latency_at_30hz_over_its_compute'] = at_30[
+                'median_latency_over_median_compute']
+            result['bars']['node_median_latency_at_30hz_over_its_compute'] = '<= 1.3'
+        if at_30 and 'latency_over_compute' in at_30:  # the tails of a busy machine too
+            result['ratios']['node_mean_latency_at_30hz_over_its_compute'] = at_30[
+                'latency_over_compute']
+            result['bars']['node_mean_latency_at_30hz_over_its_compute'] = 'no bar'
+        result['live'] = live
     if args.json:
         print(json.dumps(result, indent=2))
         return 0

@@ -20,6 +20,7 @@ from planar_vo.core.metrics import associate, metrics
 from planar_vo.io.errors import BagError
 from planar_vo.io.resources import default_bag, default_params
 from planar_vo.ros.messages import planar_pose
+from planar_vo.tools.cli import Parser, run
 from planar_vo.tools.errors import LiveError
 from planar_vo.tools.live_session import BagStream, LiveSession
 from planar_vo.tools.plots import plot_trajectories
@@ -27,6 +28,7 @@ from planar_vo.tools.replay import replay
 
 __all__ = ['main', 'run_demo']
 
+PROG = 'planar_vo_demo'
 
 def run_demo(bag: Path, params_file: Path, *, plot: Path | None = None,
              log: Path | None = None) -> dict[str, Any]:
@@ -72,8 +74,8 @@ def run_demo(bag: Path, params_file: Path, *, plot: Path | None = None,
 
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns the exit code."""
-    p = argparse.ArgumentParser(
-        prog='planar_vo_demo',
+    p = Parser(
+        prog=PROG,
         description='Start planar_vo_node, play a bag into it over DDS (loopback only) at '
                     'its own rate, and report accuracy against the ground truth, latency, '
                     'and agreement with the offline planar_vo_replay.')
@@ -87,18 +89,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--log', metavar='FILE', help="write the node's output here")
     p.add_argument('--json', action='store_true', help='print one JSON object')
     args = p.parse_args(argv)
-    try:
-        bag = Path(args.bag) if args.bag else default_bag()
-        params = Path(args.params) if args.params else default_params()
-        result = run_demo(bag, params,
-                          plot=Path(args.plot) if args.plot else None,
-                          log=Path(args.log) if args.log else None)
-    except (BagError, ConfigError, LiveError, OSError) as err:
-        print(f'planar_vo_demo: error: {err}', file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print('planar_vo_demo: interrupted', file=sys.stderr)
-        return 130
+    return run(PROG, lambda: _main(args), (BagError, ConfigError, LiveError, OSError))
+
+
+def _main(args: argparse.Namespace) -> int:
+    bag = Path(args.bag) if args.bag else default_bag()
+    params = Path(args.params) if args.params else default_params()
+    result = run_demo(bag, params, plot=Path(args.plot) if args.plot else None,
+                      log=Path(args.log) if args.log else None)
     if args.json:
         print(json.dumps(result, indent=2))
         return 0

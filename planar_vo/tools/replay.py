@@ -35,12 +35,14 @@ from planar_vo.ros.messages import (
     stamp_to_seconds,
 )
 from planar_vo.ros.pairing import Paired, Pairing
+from planar_vo.tools.cli import Parser, add_topic_arguments, run
 from planar_vo.tools.errors import ReplayError
 from planar_vo.tools.plots import plot_trajectories
 from planar_vo.tools.progress import Progress
 
 __all__ = ['main', 'replay', 'Trajectory']
 
+PROG = 'planar_vo_replay'
 IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
 INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
 ODOM_TYPE = 'nav_msgs/msg/Odometry'
@@ -230,9 +232,9 @@ def _odometry_cdr(result: FrameResult, header: Any, params: dict[str, Any]) -> b
         result, stamp, params['odom_frame'], params['base_frame']))
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog='planar_vo_replay',
+def _parser() -> Parser:
+    p = Parser(
+        prog=PROG,
         description='Run planar_vo offline over a rosbag2 bag (MCAP or sqlite3, Image or '
                     'CompressedImage), write /odom to a new bag, and score it against '
                     'ground truth when the bag has it.')
@@ -241,8 +243,7 @@ def _parser() -> argparse.ArgumentParser:
                    'same file the node takes; default: the built-in defaults')
     p.add_argument('--output', help='bag to write /odom (nav_msgs/Odometry) to; must not '
                    'exist')
-    p.add_argument('--image-topic', help='image topic (default: the only one in the bag)')
-    p.add_argument('--camera-info-topic', help='CameraInfo topic (default: the only one)')
+    add_topic_arguments(p)
     p.add_argument('--ground-truth-topic', help='nav_msgs/Odometry ground truth (default: '
                    'the only Odometry topic, if any)')
     p.add_argument('--json', action='store_true', help='print one JSON object, no table')
@@ -278,35 +279,29 @@ def _finite_or_none(value: float) -> float | None:
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns the exit code."""
     args = _parser().parse_args(argv)
-    try:
-        params = load_params_file(args.params) if args.params else defaults()
-        if args.output and Path(args.output).exists():
-            raise ReplayError(f'output {args.output} exists: choose a new path or remove it')
-        result = replay(args.bag, params, output=args.output, image_topic=args.image_topic,
-                        camera_info_topic=args.camera_info_topic,
-                        ground_truth_topic=args.ground_truth_topic,
-                        progress=not args.json and sys.stderr.isatty())
-        summary = report(result)
-        if args.tum:
-            write_tum(f'{args.tum}_estimate.txt', *result.estimate.arrays())
-            if len(result.truth.stamps):
-                write_tum(f'{args.tum}_truth.txt', *result.truth.arrays())
-        if args.plot:
-            trajectories = {'estimate (planar_vo)': result.estimate.arrays()[1]}
-            if len(result.truth.stamps):
-                trajectories = {'ground truth': result.truth.arrays()[1], **trajectories}
-            plot_trajectories(args.plot, trajectories, title=Path(args.bag).name)
-            summary['plot'] = str(args.plot)
-    except (BagError, ConfigError, ReplayError, OSError) as err:
-        print(f'planar_vo_replay: error: {err}', file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print('planar_vo_replay: interrupted', file=sys.stderr)
-        return 130
-    except Exception as err:  # noqa: BLE001 - a bug: one line, never a traceback
-        print(f'planar_vo_replay: internal error: {type(err).__name__}: {err} (please '
-              'report this line)', file=sys.stderr)
-        return 1
+    return run(PROG, lambda: _main(args), (BagError, ConfigError, ReplayError, OSError),
+               internal=True)
+
+
+def _main(args: argparse.Namespace) -> int:
+    params = load_params_file(args.params) if args.params else defaults()
+    if args.output and Path(args.output).exists():
+        raise ReplayError(f'output {args.output} exists: choose a new path or remove it')
+    result = replay(args.bag, params, output=args.output, image_topic=args.image_topic,
+                    camera_info_topic=args.camera_info_topic,
+                    ground_truth_topic=args.ground_truth_topic,
+                    progress=not args.json and sys.stderr.isatty())
+    summary = report(result)
+    if args.tum:
+        write_tum(f'{args.tum}_estimate.txt', *result.estimate.arrays())
+        if len(result.truth.stamps):
+            write_tum(f'{args.tum}_truth.txt', *result.truth.arrays())
+    if args.plot:
+        trajectories = {'estimate (planar_vo)': result.estimate.arrays()[1]}
+        if len(result.truth.stamps):
+            trajectories = {'ground truth': result.truth.arrays()[1], **trajectories}
+        plot_trajectories(args.plot, trajectories, title=Path(args.bag).name)
+        summary['plot'] = str(args.plot)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:

@@ -31,6 +31,7 @@ from planar_vo.core import config
 from planar_vo.core.geometry.camera import CameraModel
 from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry, compose, mounting_from_params
+from planar_vo.tools.cli import Parser, float_range, int_range
 from planar_vo.tools.experiments.opencv_pipeline import OpenCVReference
 from planar_vo.tools.progress import Progress
 
@@ -145,13 +146,6 @@ def _print_table(scenario: str, frames: int, rate: float, supersample: int,
           f'plain OpenCV pipeline / ours: {summary["plain_opencv_over_ours"]:.1f}x')
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports a usage error in one line on stderr (exit 2)."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(2, f'{PROG}: error: {message}\n')
-
-
 def _seeds(text: str) -> list[int]:
     try:
         seeds = [int(part) for part in text.split(',')]
@@ -163,39 +157,8 @@ def _seeds(text: str) -> list[int]:
     return seeds
 
 
-def _integer(text: str) -> int:
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
-
-
-def _frames(text: str) -> int:
-    value = _integer(text)
-    if value < 30:
-        raise argparse.ArgumentTypeError(f'must be at least 30 (t_rel needs a path), got {value}')
-    return value
-
-
-def _rate(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be a number of Hz, got {text!r}') from None
-    if not 5.0 <= value <= 120.0:
-        raise argparse.ArgumentTypeError(f'must be 5 to 120 Hz, got {text}')
-    return value
-
-
-def _supersample(text: str) -> int:
-    value = _integer(text)
-    if not 1 <= value <= 4:
-        raise argparse.ArgumentTypeError(f'must be 1 to 4, got {value}')
-    return value
-
-
-def _build_parser() -> _Parser:
-    parser = _Parser(prog=PROG, description=(
+def _build_parser() -> Parser:
+    parser = Parser(prog=PROG, description=(
         'Render synthetic drives on a sprung car body and on a rigid mount along the same '
         'path, and compare the odometry on both with OpenCV\'s homography on the same tracks '
         'and with a plain OpenCV pipeline on the same frames (the README\'s sprung-body '
@@ -205,12 +168,12 @@ def _build_parser() -> _Parser:
                              'that (default %(default)s)')
     parser.add_argument('--seeds', type=_seeds, default=[1, 2, 3, 4],
                         help='comma-separated seeds, one drive each (default 1,2,3,4)')
-    parser.add_argument('--frames', type=_frames, default=300,
+    parser.add_argument('--frames', type=int_range(30, why='t_rel needs a path'), default=300,
                         help='frames per drive (default %(default)s: 10 s and 46 m at 30 Hz)')
-    parser.add_argument('--rate', type=_rate, default=30.0, metavar='HZ',
+    parser.add_argument('--rate', type=float_range(5.0, 120.0, 'Hz'), default=30.0, metavar='HZ',
                         help='camera frame rate (default %(default)g; the same path at any rate, '
                              'longer per frame at a lower one)')
-    parser.add_argument('--supersample', type=_supersample, default=1, metavar='S',
+    parser.add_argument('--supersample', type=int_range(1, 4), default=1, metavar='S',
                         help='render S x S rays a pixel, averaged, as a sensor integrates its '
                              'pixel (default 1: one ray, mip-mapped; 2 takes about 2x as long)')
     parser.add_argument('--json', action='store_true',
