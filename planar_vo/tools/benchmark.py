@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from planar_vo.core.config import ConfigError, defaults, load_params_file
 from planar_vo.core.estimation.opencv_motion import essential_motion, homography_motion
@@ -47,7 +48,6 @@ from planar_vo.ros.messages import (
 from planar_vo.tools.cli import Parser, run
 from planar_vo.tools.errors import LiveError
 from planar_vo.tools.experiments.opencv_pipeline import OpenCVReference
-from planar_vo.tools.progress import Progress
 
 __all__ = ['main', 'run_benchmark']
 
@@ -104,7 +104,7 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
     images = images[:frames] if frames else images
     camera = camera_info_to_model(info)
     passes = 3
-    bar = Progress((passes + 1) * len(images), 'bench', enabled=progress)
+    bar = tqdm(total=(passes + 1) * len(images), desc='bench', unit='frame', disable=not progress)
 
     # 1-3. Whole frames (decode from CDR bytes + the full per-frame odometry), the time the
     # tracker spends inside them (KLT from the predicted positions, and detection) and the
@@ -147,7 +147,7 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
                 poses.append(result.pose)
                 reference_poses.append(reference_pose)
                 tracks.append((result.tracks, len(reference.points)))
-            bar.update(k * len(images) + i + 1)
+            bar.update()
 
     # Frame-to-frame correspondences (every frame a reference), as the pipeline forms them.
     tracker = Tracker(max_features=params['max_features'], quality_level=params['quality_level'],
@@ -183,7 +183,7 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
               decoded[i][1] - decoded[i - 1][1], model, params['horizon_margin'])
         for i in range(1, len(decoded))]
     for i, pairs in enumerate(correspondences):
-        bar.update(passes * len(images) + i + 1)
+        bar.update()
         if pairs is None:
             continue
         for suffix, data in (('', pairs), (' (30% outliers)', _mismatch(pairs, 0.3, i))):
@@ -398,7 +398,8 @@ def _main(args: argparse.Namespace) -> int:
     if args.frames is not None and args.frames < 2:
         raise ConfigError('--frames must be at least 2')
     bag = Path(args.bag) if args.bag else default_bag()
-    result = run_benchmark(bag, params, frames=args.frames, progress=sys.stderr.isatty())
+    result = run_benchmark(bag, params, frames=args.frames,
+                           progress=not args.json and sys.stderr.isatty())
     if args.live:
         live = run_live_benchmark(
             bag, Path(args.node_params) if args.node_params else default_params())

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from planar_vo.core.config import ConfigError, defaults, load_params_file
 from planar_vo.core.estimation.calibration import MountingEstimate
@@ -38,7 +39,6 @@ from planar_vo.ros.pairing import Paired, Pairing
 from planar_vo.tools.cli import Parser, add_topic_arguments, run
 from planar_vo.tools.errors import ReplayError
 from planar_vo.tools.plots import plot_trajectories
-from planar_vo.tools.progress import Progress
 
 __all__ = ['main', 'replay', 'Trajectory']
 
@@ -143,7 +143,7 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
                         continue
                 _process(vo, paired.image, estimate, writer, params, warnings)
 
-        bar = Progress(total, 'replay', enabled=progress)
+        bar = tqdm(total=total, desc='replay', unit='image', disable=not progress)
         try:
             if writer:
                 writer.open()
@@ -161,7 +161,7 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
                     truth.add(stamp_to_seconds(msg.header.stamp), planar_pose(msg.pose.pose))
                 else:
                     frames += 1
-                    bar.update(frames)
+                    bar.update()
                     process(pairing.add_image(stamp_ns, msg))
             process(pairing.flush())
         finally:

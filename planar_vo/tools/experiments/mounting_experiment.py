@@ -25,6 +25,7 @@ import sys
 from collections.abc import Callable, Sequence
 
 import numpy as np
+from tqdm import tqdm
 
 from planar_vo import synth
 from planar_vo.core import config
@@ -33,7 +34,6 @@ from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry, compose, mounting_from_params
 from planar_vo.tools.cli import Parser, float_range, int_range
 from planar_vo.tools.experiments.opencv_pipeline import OpenCVReference
-from planar_vo.tools.progress import Progress
 
 __all__ = ['VARIANTS', 'plain_opencv_path', 'run_drive', 'main']
 
@@ -184,19 +184,11 @@ def _build_parser() -> Parser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Command line entry point; returns the exit code (bad arguments exit 2)."""
     args = _build_parser().parse_args(argv)
-    progress = Progress(len(args.seeds) * (2 + len(VARIANTS)) * args.frames, 'drives',
-                        enabled=not args.json and sys.stderr.isatty())
-    done = 0
-
-    def tick() -> None:
-        nonlocal done
-        done += 1
-        progress.update(done)
-
-    drives = {seed: run_drive(args.scenario, args.frames, seed, args.rate, tick=tick,
-                              supersample=args.supersample)
-              for seed in args.seeds}
-    progress.close()
+    with tqdm(total=len(args.seeds) * (2 + len(VARIANTS)) * args.frames, desc='drives',
+              unit='frame', disable=args.json or not sys.stderr.isatty()) as bar:
+        drives = {seed: run_drive(args.scenario, args.frames, seed, args.rate, tick=bar.update,
+                                  supersample=args.supersample)
+                  for seed in args.seeds}
     summary = _summary(drives)
     if args.json:
         print(json.dumps({'scenario': args.scenario, 'frames': args.frames,
