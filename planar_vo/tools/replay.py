@@ -26,6 +26,7 @@ from planar_vo.core.odometry import FrameResult, VisualOdometry
 from planar_vo.io.bag import BagWriter, open_reader
 from planar_vo.io.errors import BagError
 from planar_vo.io.tum import write_tum
+from planar_vo.ros.camera_frontend import CameraFrontend, Step
 from planar_vo.ros.messages import (
     ImageError,
     camera_info_to_model,
@@ -35,7 +36,6 @@ from planar_vo.ros.messages import (
     planar_pose,
     stamp_to_seconds,
 )
-from planar_vo.ros.pairing import Paired, Pairing
 from planar_vo.tools.cli import Parser, add_topic_arguments, run
 from planar_vo.tools.errors import ReplayError
 from planar_vo.tools.plots import plot_trajectories
@@ -116,32 +116,14 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
         wanted = [c for c in (image_conn, info_conn, truth_conn) if c is not None]
         total = sum(c.msgcount for c in conns if c.topic == image_conn.topic)
         writer = BagWriter(output) if output else None
-        vo: VisualOdometry | None = None
-        frames, pairing = 0, Pairing()
+        frames, frontend = 0, CameraFrontend(params)
 
-        def process(ready: list[Paired]) -> None:
-            nonlocal vo
-            for paired in ready:
-                camera = paired.info
-                if camera is None:
-                    _warn_once(warnings, 'images before any CameraInfo were skipped')
-                    continue
-                if not paired.exact:
-                    _warn_once(warnings, 'images without a CameraInfo of their stamp: paired '
-                                         'with the newest CameraInfo')
-                try:
-                    if vo is None:
-                        vo = VisualOdometry.from_params(camera, params)
-                    elif (camera.width, camera.height) != (vo.camera.width,
-                                                           vo.camera.height) or (
-                            not np.array_equal(camera.K, vo.camera.K)
-                            or not np.array_equal(camera.D, vo.camera.D)):
-                        vo.set_camera(camera)  # keeps the old camera if it raises
-                except CameraModelError as err:
-                    _warn_once(warnings, f'CameraInfo refused: {err}')
-                    if vo is None:
-                        continue
-                _process(vo, paired.image, estimate, writer, params, warnings)
+        def process(steps: list[Step]) -> None:
+            for step in steps:
+                for reason in step.reasons:
+                    _warn_once(warnings, reason)
+                if step.process:
+                    _process(frontend.vo, step.image, estimate, writer, params, warnings)
 
         bar = tqdm(total=total, desc='replay', unit='image', disable=not progress)
         try:
@@ -156,18 +138,19 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
                     except CameraModelError as err:
                         _warn_once(warnings, f'CameraInfo refused: {err}')
                         continue
-                    process(pairing.add_info(stamp_ns, camera))
+                    process(frontend.add_info(stamp_ns, camera))
                 elif truth_conn is not None and conn.topic == truth_conn.topic:
                     truth.add(stamp_to_seconds(msg.header.stamp), planar_pose(msg.pose.pose))
                 else:
                     frames += 1
                     bar.update()
-                    process(pairing.add_image(stamp_ns, msg))
-            process(pairing.flush())
+                    process(frontend.add_image(stamp_ns, msg))
+            process(frontend.flush())
         finally:
             bar.close()
             if writer:
                 writer.close()
+    vo = frontend.vo
     if vo is None:
         raise ReplayError(f'no usable CameraInfo on {info_conn.topic}')
     return ReplayResult(estimate, truth, dict(vo.counters), warnings, frames,
