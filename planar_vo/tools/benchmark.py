@@ -33,9 +33,15 @@ from planar_vo.core.frontend.tracker import Tracker
 from planar_vo.core.geometry.camera import rays_through
 from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry, compose
-from planar_vo.io.bag import open_reader, typestore
+from planar_vo.io.bag import (
+    IMAGE_TYPES,
+    INFO_TYPE,
+    ODOM_TYPE,
+    open_reader,
+    read_messages,
+    typestore,
+)
 from planar_vo.io.errors import BagError, ResourceError
-from planar_vo.io.resources import default_bag, default_params
 from planar_vo.ros.health import RECENT_FRAMES
 from planar_vo.ros.messages import (
     ImageError,
@@ -45,7 +51,14 @@ from planar_vo.ros.messages import (
     planar_pose,
     stamp_to_seconds,
 )
-from planar_vo.tools.cli import Parser, run
+from planar_vo.tools.cli import (
+    Parser,
+    add_bag_argument,
+    add_node_params_argument,
+    bag_or_default,
+    node_params_or_default,
+    run,
+)
 from planar_vo.tools.errors import LiveError
 from planar_vo.tools.experiments.opencv_pipeline import OpenCVReference
 
@@ -65,14 +78,13 @@ def _read_raw(bag: Path) -> tuple[list[tuple[str, bytes]], Any, dict[float, np.n
     """
     images, info, truth = [], None, {}
     with open_reader(bag) as reader:
-        wanted = [c for c in reader.connections if c.msgtype in (
-            'sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage',
-            'sensor_msgs/msg/CameraInfo', 'nav_msgs/msg/Odometry')]
-        for conn, _, raw in reader.messages(connections=wanted):
-            if conn.msgtype.endswith('CameraInfo'):
-                info = info or reader.deserialize(raw, conn.msgtype)
-            elif conn.msgtype.endswith('Odometry'):
-                msg = reader.deserialize(raw, conn.msgtype)
+        wanted = [c for c in reader.connections if c.msgtype in (*IMAGE_TYPES, INFO_TYPE,
+                                                                  ODOM_TYPE)]
+        for conn, raw, msg in read_messages(reader, bag, wanted,
+                                            decode=lambda c: c.msgtype not in IMAGE_TYPES):
+            if conn.msgtype == INFO_TYPE:
+                info = info or msg
+            elif conn.msgtype == ODOM_TYPE:
                 truth[stamp_to_seconds(msg.header.stamp)] = planar_pose(msg.pose.pose)
             else:
                 images.append((conn.msgtype, bytes(raw)))
@@ -377,16 +389,13 @@ def main(argv: list[str] | None = None) -> int:
         description='Time the planar_vo pipeline against OpenCV baselines and KLT tracking '
                     'on one bag, in one run; prints medians and the ratios the design bars '
                     'are about.')
-    parser.add_argument('bag', nargs='?',
-                        help='rosbag2 bag (default: the bundled bags/default)')
+    add_bag_argument(parser)
     parser.add_argument('--params', help='params YAML (default: built-in defaults)')
     parser.add_argument('--frames', type=int, help='use only the first N images')
     parser.add_argument('--live', action='store_true',
                         help='also start planar_vo_node and measure its latency and the '
                              'highest frame rate it sustains over DDS (loopback only)')
-    parser.add_argument('--node-params',
-                        help='params YAML for the node with --live (default: the shipped '
-                             'config/planar_vo.yaml)')
+    add_node_params_argument(parser, '--node-params', when=' with --live')
     parser.add_argument('--json', action='store_true', help='print one JSON object')
     args = parser.parse_args(argv)
     return run(PROG, lambda: _main(args),
@@ -397,12 +406,12 @@ def _main(args: argparse.Namespace) -> int:
     params = load_params_file(args.params) if args.params else defaults()
     if args.frames is not None and args.frames < 2:
         raise ConfigError('--frames must be at least 2')
-    bag = Path(args.bag) if args.bag else default_bag()
+    bag = bag_or_default(args.bag)
     result = run_benchmark(bag, params, frames=args.frames,
                            progress=not args.json and sys.stderr.isatty())
     if args.live:
         live = run_live_benchmark(
-            bag, Path(args.node_params) if args.node_params else default_params())
+            bag, node_params_or_default(args.node_params))
         at_30 = next((r for r in live['rates'] if r['rate_hz'] == 30.0), None)
         if at_30 and 'median_latency_over_median_compute' in at_30:
             result['ratios']['node_median_latency_at_30hz_over_its_compute'] = at_30[

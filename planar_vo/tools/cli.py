@@ -5,7 +5,8 @@
 - :func:`run`: the body of a command with the same one-line ending for what goes wrong after
   parsing (exit 2 for the command's own errors, 130 for Ctrl-C, 1 for a bug).
 - Argument types (``type=``) whose refusal reads ``argument --x: must be ..., got ...``.
-- :func:`add_topic_arguments`: the topic choices of the tools that run over a bag.
+- The arguments several tools share: the optional bag (the bundled one by default), the node's
+  params file (the shipped one by default), the topics of the tools that run over a bag.
 """
 
 from __future__ import annotations
@@ -14,11 +15,15 @@ import argparse
 import math
 import sys
 from collections.abc import Callable
-from typing import NoReturn
+from pathlib import Path
+from typing import Any, NoReturn
+
+from planar_vo.io.resources import default_bag, default_params
 
 __all__ = ['Parser', 'run', 'fail', 'integer', 'positive_int', 'non_negative_int',
            'int_range', 'finite_float', 'positive_float', 'non_negative_float', 'float_range',
-           'add_topic_arguments']
+           'number_list', 'add_bag_argument', 'add_node_params_argument', 'bag_or_default',
+           'node_params_or_default', 'add_topic_arguments']
 
 
 class Parser(argparse.ArgumentParser):
@@ -58,49 +63,12 @@ def run(prog: str, body: Callable[[], int], errors: tuple[type[BaseException], .
         return 1
 
 
-def _type(name: str, parse: Callable[[str], object]) -> Callable[[str], object]:
-    parse.__name__ = name  # what argparse calls the type when it does not raise the message
-    return parse
-
-
 def integer(text: str) -> int:
     """An integer."""
     try:
         return int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
-
-
-def positive_int(text: str) -> int:
-    """An integer > 0."""
-    value = integer(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f'must be > 0, got {text}')
-    return value
-
-
-def non_negative_int(text: str) -> int:
-    """An integer >= 0."""
-    value = integer(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f'must be non-negative, got {value}')
-    return value
-
-
-def int_range(low: int, high: int | None = None, why: str = '') -> Callable[[str], int]:
-    """Type of an integer in ``[low, high]`` (``high`` None: no upper bound).
-
-    ``why`` follows the lower bound in the message: ``must be at least 30 (why), got 10``.
-    """
-    def parse(text: str) -> int:
-        value = integer(text)
-        if high is None and value < low:
-            raise argparse.ArgumentTypeError(
-                f'must be at least {low}{f" ({why})" if why else ""}, got {value}')
-        if high is not None and not low <= value <= high:
-            raise argparse.ArgumentTypeError(f'must be {low} to {high}, got {value}')
-        return value
-    return _type('int_range', parse)  # type: ignore[return-value]
 
 
 def _number(text: str, what: str = 'a number') -> float:
@@ -110,38 +78,81 @@ def _number(text: str, what: str = 'a number') -> float:
         raise argparse.ArgumentTypeError(f'must be {what}, got {text!r}') from None
 
 
-def finite_float(text: str) -> float:
-    """A finite number."""
-    value = _number(text)
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f'must be finite, got {text}')
-    return value
+def _checked(name: str, convert: Callable[[str], Any], ok: Callable[[Any], bool],
+             requirement: str) -> Callable[[str], Any]:
+    """Type converting with ``convert``; a value that is not ``ok`` reads ``must be ...``."""
+    def parse(text: str) -> Any:
+        value = convert(text)
+        if not ok(value):
+            raise argparse.ArgumentTypeError(f'must be {requirement}, got {text}')
+        return value
+    parse.__name__ = name  # what argparse calls the type when ``convert`` raises ValueError
+    return parse
 
 
-def positive_float(text: str) -> float:
-    """A finite number > 0."""
-    value = _number(text)
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f'must be a finite number > 0, got {text}')
-    return value
+positive_int = _checked('positive_int', integer, lambda v: v > 0, '> 0')
+non_negative_int = _checked('non_negative_int', integer, lambda v: v >= 0, 'non-negative')
+finite_float = _checked('finite_float', _number, math.isfinite, 'finite')
+positive_float = _checked('positive_float', _number, lambda v: math.isfinite(v) and v > 0,
+                          'a finite number > 0')
+non_negative_float = _checked('non_negative_float', _number,
+                              lambda v: math.isfinite(v) and v >= 0, 'a finite number >= 0')
 
 
-def non_negative_float(text: str) -> float:
-    """A finite number >= 0."""
-    value = _number(text)
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f'must be a finite number >= 0, got {text}')
-    return value
+def int_range(low: int, high: int | None = None, why: str = '') -> Callable[[str], int]:
+    """Type of an integer in ``[low, high]`` (``high`` None: no upper bound).
+
+    ``why`` follows the lower bound in the message: ``must be at least 30 (why), got 10``.
+    """
+    if high is None:
+        return _checked('int_range', integer, lambda v: v >= low,
+                        f'at least {low}' + (f' ({why})' if why else ''))
+    return _checked('int_range', integer, lambda v: low <= v <= high, f'{low} to {high}')
 
 
 def float_range(low: float, high: float, unit: str) -> Callable[[str], float]:
     """Type of a number of ``unit`` in ``[low, high]``: ``must be 5 to 120 Hz, got 1``."""
-    def parse(text: str) -> float:
-        value = _number(text, f'a number of {unit}')
-        if not low <= value <= high:  # NaN too
-            raise argparse.ArgumentTypeError(f'must be {low:g} to {high:g} {unit}, got {text}')
-        return value
-    return _type('float_range', parse)  # type: ignore[return-value]
+    return _checked('float_range', lambda text: _number(text, f'a number of {unit}'),
+                    lambda v: low <= v <= high, f'{low:g} to {high:g} {unit}')  # NaN too
+
+
+def number_list(convert: Callable[[str], Any], kind: str, example: str,
+                ok: Callable[[list], bool], requirement: str) -> Callable[[str], list]:
+    """Type of a comma-separated list, e.g. ``number_list(int, 'integers', '1,2,3', ...)``."""
+    def parse(text: str) -> list:
+        try:
+            values = [convert(part) for part in text.split(',')]
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f'must be comma-separated {kind} like {example}, got {text!r}') from None
+        if not ok(values):
+            raise argparse.ArgumentTypeError(f'must be {requirement}, got {text!r}')
+        return values
+    parse.__name__ = 'number_list'
+    return parse
+
+
+def add_bag_argument(parser: argparse.ArgumentParser, what: str = 'rosbag2 bag') -> None:
+    """The optional bag positional of the tools that play the bundled bag without one."""
+    parser.add_argument('bag', nargs='?', help=f'{what} (default: the bundled bags/default, '
+                        'from the source tree or share/planar_vo)')
+
+
+def add_node_params_argument(parser: argparse.ArgumentParser, flag: str = '--params',
+                             when: str = '') -> None:
+    """The params file given to planar_vo_node (default: the shipped one)."""
+    parser.add_argument(flag, help=f'params YAML for the node{when} (default: the shipped '
+                        'config/planar_vo.yaml)')
+
+
+def bag_or_default(bag: str | None) -> Path:
+    """The bag given, or the bundled one."""
+    return Path(bag) if bag else default_bag()
+
+
+def node_params_or_default(params: str | None) -> Path:
+    """The params file given, or the shipped one."""
+    return Path(params) if params else default_params()
 
 
 def add_topic_arguments(parser: argparse.ArgumentParser) -> None:

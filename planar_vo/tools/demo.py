@@ -18,9 +18,15 @@ import numpy as np
 from planar_vo.core.config import ConfigError, load_params_file
 from planar_vo.core.metrics import associate, metrics
 from planar_vo.io.errors import BagError
-from planar_vo.io.resources import default_bag, default_params
 from planar_vo.ros.messages import planar_pose
-from planar_vo.tools.cli import Parser, run
+from planar_vo.tools.cli import (
+    Parser,
+    add_bag_argument,
+    add_node_params_argument,
+    bag_or_default,
+    node_params_or_default,
+    run,
+)
 from planar_vo.tools.errors import LiveError
 from planar_vo.tools.live_session import BagStream, LiveSession
 from planar_vo.tools.plots import plot_trajectories
@@ -79,12 +85,8 @@ def main(argv: list[str] | None = None) -> int:
         description='Start planar_vo_node, play a bag into it over DDS (loopback only) at '
                     'its own rate, and report accuracy against the ground truth, latency, '
                     'and agreement with the offline planar_vo_replay.')
-    p.add_argument('bag', nargs='?',
-                   help='rosbag2 bag with images, CameraInfo and optionally ground truth '
-                        '(default: the bundled bags/default, from the source tree or '
-                        'share/planar_vo)')
-    p.add_argument('--params', help='params YAML for the node (default: the shipped '
-                                    'config/planar_vo.yaml)')
+    add_bag_argument(p, 'rosbag2 bag with images, CameraInfo and optionally ground truth')
+    add_node_params_argument(p)
     p.add_argument('--plot', metavar='OUT.png', help='plot the trajectories here')
     p.add_argument('--log', metavar='FILE', help="write the node's output here")
     p.add_argument('--json', action='store_true', help='print one JSON object')
@@ -93,9 +95,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(args: argparse.Namespace) -> int:
-    bag = Path(args.bag) if args.bag else default_bag()
-    params = Path(args.params) if args.params else default_params()
-    result = run_demo(bag, params, plot=Path(args.plot) if args.plot else None,
+    result = run_demo(bag_or_default(args.bag), node_params_or_default(args.params),
+                      plot=Path(args.plot) if args.plot else None,
                       log=Path(args.log) if args.log else None)
     if args.json:
         print(json.dumps(result, indent=2))

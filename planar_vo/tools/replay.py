@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,7 +22,14 @@ from planar_vo.core.estimation.calibration import MountingEstimate
 from planar_vo.core.geometry.camera import CameraModelError
 from planar_vo.core.metrics import associate, metrics
 from planar_vo.core.odometry import FrameResult, VisualOdometry
-from planar_vo.io.bag import BagWriter, open_reader
+from planar_vo.io.bag import (
+    IMAGE_TYPES,
+    INFO_TYPE,
+    ODOM_TYPE,
+    BagWriter,
+    open_reader,
+    read_messages,
+)
 from planar_vo.io.errors import BagError
 from planar_vo.io.tum import write_tum
 from planar_vo.ros.camera_frontend import CameraFrontend, Step
@@ -43,9 +49,6 @@ from planar_vo.tools.plots import plot_trajectories
 __all__ = ['main', 'replay', 'Trajectory']
 
 PROG = 'planar_vo_replay'
-IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
-INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
-ODOM_TYPE = 'nav_msgs/msg/Odometry'
 
 
 @dataclass
@@ -129,7 +132,7 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
         try:
             if writer:
                 writer.open()
-            for conn, msg in _read(reader, wanted, bag):
+            for conn, _, msg in read_messages(reader, bag, wanted):
                 stamp_ns = int(msg.header.stamp.sec) * 10**9 + int(msg.header.stamp.nanosec)
                 if conn.topic == info_conn.topic:
                     try:
@@ -146,6 +149,10 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
                     bar.update()
                     process(frontend.add_image(stamp_ns, msg))
             process(frontend.flush())
+        except BagError as err:
+            if writer:  # closed below: what was read is kept
+                raise BagError(f'{err}; what was read before is in {output}') from None
+            raise
         finally:
             bar.close()
             if writer:
@@ -155,22 +162,6 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
         raise ReplayError(f'no usable CameraInfo on {info_conn.topic}')
     return ReplayResult(estimate, truth, dict(vo.counters), warnings, frames,
                         vo.mounting_estimate())
-
-
-def _read(reader: Any, connections: list, bag: str | Path) -> Iterator[tuple[Any, Any]]:
-    """(connection, message) pairs; an error while reading the bag is BagError."""
-    messages, count = reader.messages(connections=connections), 0
-    while True:
-        try:
-            conn, _, raw = next(messages)
-            msg = reader.deserialize(raw, conn.msgtype)
-        except StopIteration:
-            return
-        except Exception as err:  # rosbags raises many kinds on a truncated or corrupt file
-            raise BagError(f'bag {bag} is corrupt after {count} messages ({type(err).__name__}'
-                           f': {err}); what was read before is in the output') from None
-        count += 1
-        yield conn, msg
 
 
 def _process(vo: VisualOdometry, msg: Any, estimate: Trajectory, writer: BagWriter | None,

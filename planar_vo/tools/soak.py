@@ -14,8 +14,17 @@ import time
 from pathlib import Path
 
 from planar_vo.io.errors import BagError, ResourceError
-from planar_vo.io.resources import default_bag, default_params
-from planar_vo.tools.cli import Parser, non_negative_int, positive_float, positive_int, run
+from planar_vo.tools.cli import (
+    Parser,
+    add_bag_argument,
+    add_node_params_argument,
+    bag_or_default,
+    node_params_or_default,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    run,
+)
 from planar_vo.tools.errors import LiveError
 from planar_vo.tools.live_session import BagStream, LiveSession
 
@@ -36,7 +45,7 @@ def _parser() -> Parser:
         prog=PROG, description='Play a bag forward and backward into '
         'planar_vo_node over loopback DDS for a long time; print frames answered and the '
         "node's resident memory over time.")
-    p.add_argument('bag', nargs='?', help='rosbag2 bag (default: the bundled bags/default)')
+    add_bag_argument(p)
     p.add_argument('--frames', type=positive_int, default=20000,
                    help='frames to send (default 20000)')
     p.add_argument('--rate', type=positive_float, default=60.0,
@@ -44,8 +53,7 @@ def _parser() -> Parser:
     p.add_argument('--warm-up', type=non_negative_int, default=2000,
                    help='frames after which memory growth is measured (default 2000)')
     p.add_argument('--every', type=positive_int, default=2000, help='report every N frames')
-    p.add_argument('--params', help='params YAML for the node (default: the shipped '
-                                    'config/planar_vo.yaml)')
+    add_node_params_argument(p)
     return p
 
 
@@ -59,8 +67,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(args: argparse.Namespace) -> int:
-    stream = BagStream.read(args.bag or default_bag())
-    params = args.params or default_params()
+    stream = BagStream.read(bag_or_default(args.bag))
+    params = node_params_or_default(args.params)
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import CameraInfo, Image
     images = [deserialize_message(raw, Image) for _, raw, _ in stream.frames]

@@ -19,7 +19,6 @@ in: sprung / rigid mount, and OpenCV / ours (on the same tracks, and as a plain 
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from collections.abc import Callable, Sequence
@@ -32,7 +31,7 @@ from planar_vo.core import config
 from planar_vo.core.geometry.camera import CameraModel
 from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry, compose, mounting_from_params
-from planar_vo.tools.cli import Parser, float_range, int_range
+from planar_vo.tools.cli import Parser, float_range, int_range, number_list
 from planar_vo.tools.experiments.opencv_pipeline import OpenCVReference
 
 __all__ = ['VARIANTS', 'plain_opencv_path', 'run_drive', 'main']
@@ -146,15 +145,9 @@ def _print_table(scenario: str, frames: int, rate: float, supersample: int,
           f'plain OpenCV pipeline / ours: {summary["plain_opencv_over_ours"]:.1f}x')
 
 
-def _seeds(text: str) -> list[int]:
-    try:
-        seeds = [int(part) for part in text.split(',')]
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f'must be comma-separated integers like 1,2,3,4, got {text!r}') from None
-    if any(s < 0 for s in seeds) or len(set(seeds)) != len(seeds):
-        raise argparse.ArgumentTypeError(f'must be distinct and non-negative, got {text!r}')
-    return seeds
+_SEEDS = number_list(int, 'integers', '1,2,3,4',
+                     lambda seeds: min(seeds) >= 0 and len(set(seeds)) == len(seeds),
+                     'distinct and non-negative')
 
 
 def _build_parser() -> Parser:
@@ -166,7 +159,7 @@ def _build_parser() -> Parser:
     parser.add_argument('--scenario', choices=SPRUNG, default='car',
                         help='car: pitch ~1 deg, roll ~0.6 deg, bounce ~1.5 cm; rough: twice '
                              'that (default %(default)s)')
-    parser.add_argument('--seeds', type=_seeds, default=[1, 2, 3, 4],
+    parser.add_argument('--seeds', type=_SEEDS, default=[1, 2, 3, 4],
                         help='comma-separated seeds, one drive each (default 1,2,3,4)')
     parser.add_argument('--frames', type=int_range(30, why='t_rel needs a path'), default=300,
                         help='frames per drive (default %(default)s: 10 s and 46 m at 30 Hz)')

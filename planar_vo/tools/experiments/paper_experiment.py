@@ -20,7 +20,6 @@ whatever other sigmas are run. Numpy and OpenCV; matplotlib only for ``--plot``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -40,7 +39,7 @@ from planar_vo.core.geometry.solvers import (
     homography_2point,
     homography_npoint,
 )
-from planar_vo.tools.cli import Parser, fail, non_negative_int, positive_int
+from planar_vo.tools.cli import Parser, fail, non_negative_int, number_list, positive_int
 from planar_vo.tools.plots import pyplot
 
 __all__ = ['SETUP', 'SOLVERS', 'Trials', 'make_trials', 'estimate_all', 'run_experiment',
@@ -404,18 +403,6 @@ def plot_fig5(phis: dict[str, np.ndarray], sigma: float, path: str) -> None:
         plt.close(fig)
 
 
-def _sigmas(text: str) -> list[float]:
-    try:
-        values = [float(part) for part in text.split(',')]
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f'must be comma-separated numbers like 0,0.5,1, got {text!r}') from None
-    if not all(math.isfinite(v) and v >= 0 for v in values):
-        raise argparse.ArgumentTypeError(
-            f'must be finite and non-negative (pixels), got {text!r}')
-    return values
-
-
 def _check_plot_path(path: str) -> str | None:
     """Why ``path`` cannot take the plot, or None; checked before the long run."""
     ext = os.path.splitext(path)[1].lower().lstrip('.')
@@ -441,6 +428,11 @@ def _check_plot_path(path: str) -> str | None:
     return None
 
 
+_SIGMAS = number_list(float, 'numbers', '0,0.5,1',
+                      lambda values: all(math.isfinite(v) and v >= 0 for v in values),
+                      'finite and non-negative (pixels)')
+
+
 def _build_parser() -> Parser:
     parser = Parser(
         prog=PROG,
@@ -450,7 +442,7 @@ def _build_parser() -> Parser:
     parser.add_argument('--trials', type=positive_int, default=DEFAULT_TRIALS,
                         help='Monte Carlo trials per noise level (default %(default)s; '
                              'the paper used 1000)')
-    parser.add_argument('--sigmas', type=_sigmas, default=list(DEFAULT_SIGMAS),
+    parser.add_argument('--sigmas', type=_SIGMAS, default=list(DEFAULT_SIGMAS),
                         help='comma-separated pixel noise standard deviations, added to both '
                              'images (default 0,0.5,1,1.5,2 as in the paper)')
     parser.add_argument('--seed', type=non_negative_int, default=DEFAULT_SEED,
