@@ -52,7 +52,7 @@ def test_installed_layout(colcon_install):
 
 
 def test_installed_package_finds_its_files_and_executables(colcon_install, tmp_path):
-    code = ('from planar_vo import resources as r; '
+    code = ('from planar_vo.io import resources as r; '
             'print(r.__file__); print(r.default_params()); print(r.default_bag()); '
             f'print(r.launch_file()); print(*map(r.executable, {EXECUTABLES!r}))')
     out = run_sourced(colcon_install, f'{sys.executable} -c {code!r}', cwd=tmp_path)
