@@ -15,6 +15,7 @@ WHEELS = [
     'numpy',
     'pyyaml',
     'rosbags',
+    'tqdm',
 ]
 
 setup(

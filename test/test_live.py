@@ -5,7 +5,8 @@ import os
 import numpy as np
 import pytest
 
-from planar_vo.core import config, evaluate
+from planar_vo.core import config
+from planar_vo.core.metrics import associate, metrics
 from planar_vo.tools.live_session import BagStream, LiveSession
 from planar_vo.tools.replay import replay
 from test.test_node import CONFIG, DEFAULT_BAG
@@ -36,12 +37,12 @@ def test_node_at_real_rate_matches_replay_and_ground_truth(dds_env):
                      for m in (session.odometry(s) for s in stamps)])
     offline = replay(DEFAULT_BAG, config.load_params_file(CONFIG))
     off_stamps, off_poses = offline.estimate.arrays()
-    ia, ib = evaluate.associate(np.array(stamps), off_stamps)
+    ia, ib = associate(np.array(stamps), off_stamps)
     assert len(ia) == frames
     # The same pipeline on the same frames: identical up to float formatting.
     np.testing.assert_allclose(live[ia], off_poses[ib, :2], atol=1e-6)
     truth = np.array([stream.truth[s] for s in stamps])
-    accuracy = evaluate.metrics(np.c_[live, np.zeros(frames)], truth)  # positions only
+    accuracy = metrics(np.c_[live, np.zeros(frames)], truth)  # positions only
     assert accuracy['final_drift_percent'] < 0.5, accuracy
     latency = session.latencies_ms(stamps[1:])
     assert len(latency) == frames - 1 and np.all(latency > 0)
@@ -52,7 +53,7 @@ def test_a_node_that_dies_is_reported_at_once(dds_env):
     instead of waiting out its timeout (a bench once waited over 10 minutes on a dead node)."""
     import signal
 
-    from planar_vo.tools.live_session import LiveError
+    from planar_vo.tools.errors import LiveError
     stream = BagStream.read(DEFAULT_BAG, limit=2)
     session = LiveSession(CONFIG, image_type=stream.image_type)
     try:

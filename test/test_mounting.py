@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from planar_vo import synth
-from planar_vo.core import config, evaluate
+from planar_vo.core import config
+from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry
 from planar_vo.io import resources
 from test.conftest import sprung_body_params, synth_camera_model
@@ -33,8 +34,8 @@ def _run(renderer, images, truth_mounting, overrides, rate=30.0):
 
 def _metrics(results, traj):
     assert all(r.status in ('first', 'ok') for r in results)
-    return evaluate.metrics(np.array([r.pose for r in results]),
-                            np.c_[traj.x, traj.y, traj.yaw])
+    return metrics(np.array([r.pose for r in results]),
+                   np.c_[traj.x, traj.y, traj.yaw])
 
 
 @pytest.fixture(scope='module')
@@ -101,8 +102,8 @@ def test_sprung_body_is_over_3x_better_than_a_plain_opencv_pipeline(sprung_car):
     from planar_vo.tools.experiments.mounting_experiment import plain_opencv_path
     renderer, traj, images = sprung_car
     params = _params(renderer.mounting, sprung_body_params('car'))  # 700 features for both
-    plain = evaluate.metrics(plain_opencv_path(synth_camera_model(renderer), params, images),
-                             np.c_[traj.x, traj.y, traj.yaw])
+    plain = metrics(plain_opencv_path(synth_camera_model(renderer), params, images),
+                    np.c_[traj.x, traj.y, traj.yaw])
     ours = _metrics(_run(renderer, images, renderer.mounting, params), traj)
     assert plain['t_rel_percent'] > 3.0 * ours['t_rel_percent'], (plain, ours)
     assert ours['r_rel_deg_per_100m'] < plain['r_rel_deg_per_100m'], (plain, ours)
@@ -119,7 +120,7 @@ def test_attitude_on_a_rigid_mount_costs_little():
                             ('attitude', {'estimate_attitude': True, 'self_calibrate': False})):
         results, truth = run_scenario('straight', 150, overrides=overrides)
         assert all(r.status in ('first', 'ok') for r in results)
-        runs[name] = evaluate.metrics(np.array([r.pose for r in results]), truth)
+        runs[name] = metrics(np.array([r.pose for r in results]), truth)
     rigid, attitude = runs['rigid'], runs['attitude']
     assert attitude['t_rel_percent'] < 1.2 * rigid['t_rel_percent'], runs
     assert attitude['r_rel_deg_per_100m'] < 1.5 * rigid['r_rel_deg_per_100m'] + 0.1, runs

@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
-from planar_vo.core import config, evaluate
+from planar_vo.core import config
 from planar_vo.core.geometry.camera import CameraModel, Mounting
 from planar_vo.core.geometry.se2 import compose
+from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry
 from test.conftest import drive, run_scenario
 
@@ -23,7 +24,7 @@ def poses(results):
 def test_scenarios_within_bounds(scenario):
     results, truth, _ = drive(scenario, 150, 30.0)
     assert all(r.status in ('first', 'ok') for r in results)
-    m = evaluate.metrics(poses(results), truth)
+    m = metrics(poses(results), truth)
     assert m['t_rel_percent'] < 0.3, m
     assert m['r_rel_deg_per_100m'] < 2.0, m
     assert abs(m['scale_ratio'] - 1) < 0.005, m
@@ -37,7 +38,7 @@ def test_other_lens_models_end_to_end(model, fx):
     camera = SynthCamera.scaled(640, 480, fx=fx, fy=fx, distortion_model=model)
     results, truth = run_scenario('gentle', 90, camera=camera)
     assert all(r.status in ('first', 'ok') for r in results)
-    m = evaluate.metrics(poses(results), truth)
+    m = metrics(poses(results), truth)
     assert m['t_rel_percent'] < 0.3, m
     assert abs(m['scale_ratio'] - 1) < 0.005, m
 
@@ -55,7 +56,7 @@ def test_blank_frames_are_skipped_without_losing_motion():
     # tracks, in the last good image warped by that motion (without the warp tracking
     # restarted and the gap was extrapolated): no frame is lost after the gap.
     assert statuses[43:] == ['ok'] * (90 - 43)
-    m = evaluate.metrics(poses(results), truth)
+    m = metrics(poses(results), truth)
     assert m['final_drift_percent'] < 0.5, m
     # The held pose is distrusted while the vehicle moves unseen.
     assert results[42].pose_covariance[0, 0] > 10 * results[39].pose_covariance[0, 0]
@@ -83,7 +84,7 @@ def test_frames_that_cannot_be_estimated_are_measured_later_against_the_referenc
     results, truth = run_scenario('straight', 60, corrupt=corrupt)
     assert [r.status for r in results[30:33]] == ['no_estimate', 'no_estimate', 'ok']
     # Frame 32 was matched against frame 29: its motion spans three frames, none lost.
-    m = evaluate.metrics(poses(results), truth)
+    m = metrics(poses(results), truth)
     assert m['final_drift_percent'] < 1.0, m
     assert m['scale_ratio'] == pytest.approx(1.0, abs=0.01)
 
@@ -127,7 +128,7 @@ def test_duplicate_stamps_and_wrong_sizes_are_skipped_not_restarts():
     assert results[20].status == 'duplicate' and 'duplicate' in results[20].message
     assert results[25].status == 'skipped' and '320x240' in results[25].message
     assert [r.status for r in results[26:]] == ['ok'] * 14
-    m = evaluate.metrics(poses(results), truth)
+    m = metrics(poses(results), truth)
     assert m['final_drift_percent'] < 0.5, m
 
 
@@ -234,7 +235,7 @@ def test_a_new_image_size_restarts_tracking_and_keeps_the_motion():
     assert results[20].status == 'reinitialized' and 'size changed' in results[20].message
     assert [r.status for r in results[21:]] == ['ok'] * 19
     # Frame 20's motion is extrapolated, the rest measured at half resolution.
-    m = evaluate.metrics(poses(results), truth)
+    m = metrics(poses(results), truth)
     assert m['final_drift_percent'] < 1.0, m
 
 
@@ -252,7 +253,7 @@ def test_klt_prewarp_takes_out_the_bias_of_windows_that_deform(scenario, frames,
         results, truth = run_scenario(scenario, frames, rate=rate, overrides={
             'klt_prewarp': prewarp, 'inlier_threshold': threshold})
         assert all(r.status in ('first', 'ok') for r in results)
-        got[prewarp] = evaluate.metrics(poses(results), truth)
+        got[prewarp] = metrics(poses(results), truth)
     off, on = got[False], got[True]
     assert on['t_rel_percent'] < 0.06, on
     assert on['r_rel_deg_per_100m'] < 1.0, on

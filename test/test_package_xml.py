@@ -15,11 +15,11 @@ JAZZY_PACKAGES = {'rclpy', 'rcl_interfaces', 'builtin_interfaces', 'std_msgs', '
                   'nav_msgs', 'geometry_msgs', 'std_srvs', 'diagnostic_msgs',
                   'ament_index_python', 'tf2_ros_py', 'launch', 'launch_ros'}
 ROSDEP_PYTHON_KEYS = {'python3-opencv', 'python3-numpy', 'python3-yaml', 'python3-matplotlib',
-                      'python3-pytest', 'python3-rosbags-pip'}
+                      'python3-pytest', 'python3-rosbags-pip', 'python3-tqdm'}
 # Import name -> rosdep key, where they differ.
 KEY_OF_IMPORT = {'cv2': 'python3-opencv', 'numpy': 'python3-numpy', 'yaml': 'python3-yaml',
                  'matplotlib': 'python3-matplotlib', 'rosbags': 'python3-rosbags-pip',
-                 'tf2_ros': 'tf2_ros_py', 'pytest': 'python3-pytest'}
+                 'tf2_ros': 'tf2_ros_py', 'pytest': 'python3-pytest', 'tqdm': 'python3-tqdm'}
 
 
 def _depends(*tags):

@@ -11,7 +11,8 @@ import pytest
 from planar_vo import synth
 from planar_vo.core.geometry.camera import Mounting
 from planar_vo.io import resources
-from planar_vo.io.bag import BagError, open_reader
+from planar_vo.io.bag import open_reader
+from planar_vo.io.errors import BagError
 from test.conftest import synth_camera_model
 
 SYNTH = resources.executable('planar_vo_synth')
@@ -121,10 +122,10 @@ def test_a_supersampled_pixel_is_the_area_mean_of_a_finer_camera(scenario):
 def test_supersampled_frames_make_the_odometry_more_accurate():
     """Point-sampled, KLT follows the texture's aliasing too: the rigid model's t_rel on
     `straight` is 0.032 % one ray per pixel, 0.021 % with 2 x 2 (the renderer's truth)."""
-    from planar_vo.core import evaluate
+    from planar_vo.core.metrics import metrics
     from test.conftest import run_scenario
     results, truth = run_scenario('straight', 150, supersample=2)
-    m = evaluate.metrics(np.array([r.pose for r in results]), truth)
+    m = metrics(np.array([r.pose for r in results]), truth)
     assert m['t_rel_percent'] < 0.027, m['t_rel_percent']
     assert abs(m['scale_ratio'] - 1.0) < 5e-4, m['scale_ratio']
 
@@ -686,10 +687,10 @@ def test_pipeline_agrees_with_the_renderer_on_a_rolled_and_yawed_camera():
     by the renderer and by planar_vo.core.geometry.camera would show as drift: 1 deg of roll error
     gives
     about 45 deg/100 m here. The rigid model, so that attitude tracking cannot absorb it."""
-    from planar_vo.core import evaluate
+    from planar_vo.core.metrics import metrics
     from test.conftest import run_scenario
     results, truth = run_scenario('car', 90, suspension=synth.RIGID,
                                   overrides={'estimate_attitude': False})
     assert all(r.status in ('first', 'ok') for r in results)
-    m = evaluate.metrics(np.array([r.pose for r in results]), truth)
+    m = metrics(np.array([r.pose for r in results]), truth)
     assert m['t_rel_percent'] < 0.15 and m['r_rel_deg_per_100m'] < 2.0, m

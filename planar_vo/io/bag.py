@@ -14,17 +14,19 @@ and every MCAP reader (rosbags, ``ros2 bag``, the ``mcap`` library, Foxglove) re
 Reading::
 
     with open_reader(path) as reader:          # rosbag2 directory or a bare .mcap file
-        for conn, stamp_ns, raw in reader.messages():
-            msg = reader.deserialize(raw, conn.msgtype)
+        for conn, raw, msg in read_messages(reader, path):
+            ...                                # msg: the deserialized message
 
-Missing paths, directories that are not bags and corrupt bags raise :class:`BagError`.
+Missing paths, directories that are not bags and corrupt bags raise
+:class:`planar_vo.io.errors.BagError`.
 """
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import Connection
@@ -32,11 +34,15 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.typesys import Stores, get_typestore
 
-__all__ = ['BagError', 'BagWriter', 'open_reader', 'typestore', 'write_bag']
+from planar_vo.io.errors import BagError
 
+__all__ = ['BagWriter', 'open_reader', 'read_messages', 'typestore', 'write_bag', 'IMAGE_TYPES',
+           'INFO_TYPE', 'ODOM_TYPE']
 
-class BagError(Exception):
-    """A bag cannot be read or written (missing, not a bag, corrupt, already exists)."""
+# The message types the tools read: camera images, calibration, ground truth.
+IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
+INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
+ODOM_TYPE = 'nav_msgs/msg/Odometry'
 
 
 @functools.cache
@@ -148,3 +154,26 @@ def open_reader(path) -> AnyReader:
     except (AnyReaderError, OSError, ValueError, KeyError) as err:
         raise BagError(f'cannot read bag {p}: {err}') from None
     return reader
+
+
+def read_messages(reader: AnyReader, path, connections: list[Connection] | None = None, *,
+                  decode: Callable[[Connection], bool] = lambda conn: True
+                  ) -> Iterator[tuple[Connection, bytes, Any]]:
+    """``(connection, CDR bytes, message)`` of each message of ``connections`` (default: all).
+
+    The message is deserialized where ``decode(connection)`` is true, else None (kept as
+    bytes, e.g. images to decode later). A bag that turns out truncated or corrupt part way
+    raises :class:`BagError` (rosbags raises many kinds of exception for it).
+    """
+    messages, count = reader.messages(connections=connections), 0
+    while True:
+        try:
+            conn, _, raw = next(messages)
+            msg = reader.deserialize(raw, conn.msgtype) if decode(conn) else None
+        except StopIteration:
+            return
+        except Exception as err:  # noqa: BLE001 - whatever rosbags raises on a broken file
+            raise BagError(f'bag {path} is corrupt after {count} messages '
+                           f'({type(err).__name__}: {err})') from None
+        count += 1
+        yield conn, raw, msg

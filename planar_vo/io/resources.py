@@ -16,15 +16,13 @@ import shutil
 import sysconfig
 from pathlib import Path
 
-__all__ = ['PACKAGE', 'ResourceError', 'share_dir', 'default_params', 'default_bag',
+from planar_vo.io.errors import ResourceError
+
+__all__ = ['PACKAGE', 'share_dir', 'default_params', 'default_bag',
            'launch_file', 'executable', 'from_source_tree', 'installed_prefix']
 
 PACKAGE = 'planar_vo'
 _SOURCE_ROOT = Path(__file__).resolve().parents[2]
-
-
-class ResourceError(FileNotFoundError):
-    """A file or executable of the package cannot be found (with how to fix it)."""
 
 
 def from_source_tree() -> bool:

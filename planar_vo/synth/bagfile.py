@@ -9,12 +9,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from planar_vo.synth.lens import SynthCamera
 from planar_vo.synth.mount import CameraMount, MountingError, params_yaml
 from planar_vo.synth.scenarios import SCENARIOS, render_scenario
 from planar_vo.synth.vehicle import RIGID, Suspension, Trajectory
-from planar_vo.tools.progress import Progress
 
 EPOCH_NS = 1_700_000_000 * 1_000_000_000
 IMAGE_TOPIC = '/camera/image_raw'
@@ -131,8 +131,8 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
     ts = typestore()
     img_topic = COMPRESSED_TOPIC if compressed else IMAGE_TOPIC
     img_type = 'sensor_msgs/msg/CompressedImage' if compressed else 'sensor_msgs/msg/Image'
-    bar = Progress(frames, 'planar_vo_synth', enabled=progress)
-    with BagWriter(out_path, compress=storage_compression) as bag:
+    with BagWriter(out_path, compress=storage_compression) as bag, tqdm(
+            total=frames, desc='planar_vo_synth', unit='frame', disable=not progress) as bar:
         bag.add_topic(img_topic, img_type)
         bag.add_topic(INFO_TOPIC, 'sensor_msgs/msg/CameraInfo')
         bag.add_topic(ODOM_TOPIC, 'nav_msgs/msg/Odometry')
@@ -146,8 +146,7 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                       camera_info_msg(ts, camera, ns))
             bag.write(img_topic, img_type, ns, msg)
             bag.write(ODOM_TOPIC, 'nav_msgs/msg/Odometry', ns, odometry_msg(ts, traj, k, ns))
-            bar.update(k + 1)
-    bar.close()
+            bar.update()
     if params_out is not None:
         text = params_yaml(configured)
         if configured != mounting:

@@ -8,44 +8,23 @@ import math
 import sys
 from pathlib import Path
 
+from planar_vo.io.errors import BagError
 from planar_vo.synth.bagfile import generate_bag
 from planar_vo.synth.lens import DISTORTION_DEFAULTS, SynthCamera
 from planar_vo.synth.mount import MountingError
 from planar_vo.synth.scenarios import SCENARIOS
 from planar_vo.synth.vehicle import Suspension
+from planar_vo.tools.cli import (
+    Parser,
+    finite_float,
+    integer,
+    non_negative_float,
+    positive_float,
+    positive_int,
+    run,
+)
 
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # one line, exit code 2
-        self.exit(2, f'planar_vo_synth: error: {message}\n')
-
-
-def _positive_int(s):
-    v = int(s)
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f'must be > 0, got {s}')
-    return v
-
-
-def _positive_float(s):
-    v = float(s)
-    if not math.isfinite(v) or v <= 0:
-        raise argparse.ArgumentTypeError(f'must be a finite number > 0, got {s}')
-    return v
-
-
-def _finite(s):
-    v = float(s)
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f'must be finite, got {s}')
-    return v
-
-
-def _nonneg(s):
-    v = float(s)
-    if not math.isfinite(v) or v < 0:
-        raise argparse.ArgumentTypeError(f'must be a finite number >= 0, got {s}')
-    return v
+PROG = 'planar_vo_synth'
 
 
 def _mounting_error(s):
@@ -58,56 +37,56 @@ def _mounting_error(s):
 def build_parser() -> argparse.ArgumentParser:
     """Command-line interface of ``planar_vo_synth``."""
     scen = '; '.join(f'{k}: {v.description}' for k, v in SCENARIOS.items())
-    p = _Parser(
-        prog='planar_vo_synth',
+    p = Parser(
+        prog=PROG,
         description='Render a monocular camera on a car driving over textured ground and write '
                     'a rosbag2 bag (MCAP, Jazzy) with /camera/image_raw, /camera/camera_info '
                     'and /ground_truth/odom (base_link on the rear axle, in odom).')
     p.add_argument('out_bag', metavar='OUT_BAG', help='output bag directory (must not exist)')
     p.add_argument('--scenario', default='default', metavar='NAME',
                    help=f'driving scenario (default: default). {scen}')
-    p.add_argument('--frames', type=_positive_int, default=300,
+    p.add_argument('--frames', type=positive_int, default=300,
                    help='number of frames (default: 300)')
-    p.add_argument('--seed', type=int, default=0, help='random seed (default: 0)')
-    p.add_argument('--rate', type=_positive_float, default=30.0,
+    p.add_argument('--seed', type=integer, default=0, help='random seed (default: 0)')
+    p.add_argument('--rate', type=positive_float, default=30.0,
                    help='frame rate in Hz (default: 30)')
-    p.add_argument('--width', type=_positive_int, default=640, help='image width (default 640)')
-    p.add_argument('--height', type=_positive_int, default=480,
+    p.add_argument('--width', type=positive_int, default=640, help='image width (default 640)')
+    p.add_argument('--height', type=positive_int, default=480,
                    help='image height (default 480)')
-    p.add_argument('--fx', type=_positive_float, help='focal length x in px (default 460*W/640)')
-    p.add_argument('--fy', type=_positive_float, help='focal length y in px (default = fx)')
-    p.add_argument('--cx', type=_finite, help='principal point x (default W/2)')
-    p.add_argument('--cy', type=_finite, help='principal point y (default H/2)')
+    p.add_argument('--fx', type=positive_float, help='focal length x in px (default 460*W/640)')
+    p.add_argument('--fy', type=positive_float, help='focal length y in px (default = fx)')
+    p.add_argument('--cx', type=finite_float, help='principal point x (default W/2)')
+    p.add_argument('--cy', type=finite_float, help='principal point y (default H/2)')
     p.add_argument('--distortion-model', choices=sorted(DISTORTION_DEFAULTS),
                    default='plumb_bob', help='lens model, as CameraInfo names it '
                    '(default plumb_bob; equidistant is the OpenCV fisheye model)')
-    p.add_argument('--dist', type=_finite, nargs='+', metavar='D',
+    p.add_argument('--dist', type=finite_float, nargs='+', metavar='D',
                    help='distortion coefficients in CameraInfo order: 5 for plumb_bob '
                         '(default -0.25 0.07 0.0005 -0.0005 0), 8 for rational_polynomial, '
                         '4 for equidistant')
-    p.add_argument('--camera-x', type=_finite,
+    p.add_argument('--camera-x', type=finite_float,
                    help='camera x ahead of the rear axle, m (default 1.2)')
-    p.add_argument('--camera-y', type=_finite, help='camera y (left), m (default 0)')
-    p.add_argument('--camera-height', type=_positive_float,
+    p.add_argument('--camera-y', type=finite_float, help='camera y (left), m (default 0)')
+    p.add_argument('--camera-height', type=positive_float,
                    help='camera height above the ground, m (default 1.25)')
-    p.add_argument('--camera-roll', type=_finite,
+    p.add_argument('--camera-roll', type=finite_float,
                    help="rad (default: the scenario's, 0 except car 0.5 deg, rough -0.6 deg)")
-    p.add_argument('--camera-pitch', type=_finite,
+    p.add_argument('--camera-pitch', type=finite_float,
                    help='rad, positive looks down (default 0.13963 = 8 deg)')
-    p.add_argument('--camera-yaw', type=_finite,
+    p.add_argument('--camera-yaw', type=finite_float,
                    help="rad, positive looks left (default: the scenario's, 0 except "
                         'car -0.7 deg, rough 0.8 deg)')
-    p.add_argument('--body-pitch', type=_nonneg, metavar='DEG',
+    p.add_argument('--body-pitch', type=non_negative_float, metavar='DEG',
                    help='sprung body: largest |pitch|, degrees (a drive reaches 60-90 %% of '
                         'it); 60 %% follows the longitudinal '
                         'acceleration (dive when braking, squat when accelerating), 40 %% is '
                         "road vibration up to 3 Hz (default: the scenario's, 0 except car 1, "
                         'rough 2)')
-    p.add_argument('--body-roll', type=_nonneg, metavar='DEG',
+    p.add_argument('--body-roll', type=non_negative_float, metavar='DEG',
                    help='sprung body: largest |roll|, degrees; 60 %% follows the lateral '
                         'acceleration v*omega (lean out of turns), 40 %% is road vibration '
                         "(default: the scenario's, 0 except car 0.6, rough 1.2)")
-    p.add_argument('--bounce', type=_nonneg, metavar='M',
+    p.add_argument('--bounce', type=non_negative_float, metavar='M',
                    help="sprung body: largest height change, m (default: the scenario's, 0 "
                         'except car 0.015, rough 0.03)')
     p.add_argument('--configured-error', type=_mounting_error, metavar='NAME=VALUE,...',
@@ -115,21 +94,21 @@ def build_parser() -> argparse.ArgumentParser:
                         'this much, to test calibration: roll, pitch, yaw in degrees, x, y, '
                         'height in metres, e.g. pitch=1.0,roll=-1.0,yaw=1.0,x=0.15 (the '
                         'images still use the true mounting, noted in a comment)')
-    p.add_argument('--exposure', type=_nonneg, default=0.0, metavar='FRACTION',
+    p.add_argument('--exposure', type=non_negative_float, default=0.0, metavar='FRACTION',
                    help='auto-exposure gain changes within +-FRACTION (e.g. 0.2): half a '
                         'smooth drift, half steps every 1.5-4 s (default 0: off)')
-    p.add_argument('--noise', type=_nonneg, default=1.5,
+    p.add_argument('--noise', type=non_negative_float, default=1.5,
                    help='Gaussian image noise sigma, grey levels (default 1.5)')
-    p.add_argument('--supersample', type=_positive_int, default=1, metavar='S',
+    p.add_argument('--supersample', type=positive_int, default=1, metavar='S',
                    help='S x S rays per pixel, averaged, as a sensor integrates its pixel '
                         '(default 1: one ray per pixel, mip-mapped; 2 costs about 4x the time)')
-    p.add_argument('--max-range', type=_positive_float, default=60.0,
+    p.add_argument('--max-range', type=positive_float, default=60.0,
                    help='ground beyond this distance (m) is haze/sky (default 60)')
     p.add_argument('--no-obstacles', action='store_true', help='no boxes')
     p.add_argument('--compressed', action='store_true',
                    help='write JPEG sensor_msgs/CompressedImage on /camera/image_raw/compressed '
                         'instead of raw Image')
-    p.add_argument('--jpeg-quality', type=_positive_int, default=90,
+    p.add_argument('--jpeg-quality', type=positive_int, default=90,
                    help='JPEG quality with --compressed (default 90)')
     p.add_argument('--no-storage-compression', action='store_true',
                    help='do not zstd-compress the MCAP chunks')
@@ -185,9 +164,7 @@ def main(argv=None) -> int:
                                 cx=args.cx, cy=args.cy,
                                 dist=tuple(args.dist) if args.dist else None,
                                 distortion_model=args.distortion_model)
-    from planar_vo.io.bag import BagError
-
-    try:
+    def generate() -> int:
         res = generate_bag(out, args.scenario, args.frames, args.seed, rate=args.rate,
                            camera=camera, mounting=mounting, suspension=suspension,
                            compressed=args.compressed,
@@ -197,14 +174,10 @@ def main(argv=None) -> int:
                            params_out=args.params_out, configured_error=args.configured_error,
                            exposure=args.exposure, supersample=args.supersample,
                            progress=not args.quiet)
-    except (BagError, OSError, ValueError) as err:
-        print(f'planar_vo_synth: error: {err}', file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print('planar_vo_synth: interrupted', file=sys.stderr)
-        return 130
-    if not args.quiet:
-        print(f'planar_vo_synth: wrote {res.path} ({res.frames} frames, scenario {res.scenario}, '
-              f'path {res.trajectory.length:.1f} m, {res.obstacles} boxes, '
-              f'{res.seconds:.1f} s)', file=sys.stderr)
-    return 0
+        if not args.quiet:
+            print(f'{PROG}: wrote {res.path} ({res.frames} frames, scenario {res.scenario}, '
+                  f'path {res.trajectory.length:.1f} m, {res.obstacles} boxes, '
+                  f'{res.seconds:.1f} s)', file=sys.stderr)
+        return 0
+
+    return run(PROG, generate, (BagError, OSError, ValueError))

@@ -5,9 +5,8 @@ Prints ratios, never absolute pass/fail timings (machines are shared and noisy):
   (5-point) and ``findHomography + decomposeHomographyMat`` (4-point), on the same
   correspondences of every frame of the bag;
 - a whole offline frame (bag decode included) vs the time its tracker takes (KLT from the
-  predicted positions, and detection), and
-  vs the plain OpenCV pipeline (:class:`planar_vo.core.estimation.baselines.OpenCVReference`,
-  decode-free);
+  predicted positions, and detection), and vs the plain OpenCV pipeline
+  (:class:`planar_vo.tools.experiments.opencv_pipeline.OpenCVReference`, decode-free);
 - with ``--live``, the node's median latency over DDS vs its own median compute on the same
   frames (as its /diagnostics report it), and the highest frame rate it keeps up with;
 - the accuracy of the run (planar_vo and the reference), so a speed gain that costs
@@ -24,22 +23,26 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
-from planar_vo.core import evaluate
 from planar_vo.core.config import ConfigError, defaults, load_params_file
-from planar_vo.core.estimation.baselines import (
-    OpenCVReference,
-    essential_motion,
-    homography_motion,
-)
+from planar_vo.core.estimation.opencv_motion import essential_motion, homography_motion
 from planar_vo.core.estimation.ransac import PoseEstimationError, TransferModel, estimate_motion
 from planar_vo.core.frontend.motion_search import GroundMotionSearch
 from planar_vo.core.frontend.tracker import Tracker
 from planar_vo.core.geometry.camera import rays_through
 from planar_vo.core.geometry.se2 import compose
+from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry
-from planar_vo.io.bag import BagError, open_reader, typestore
-from planar_vo.io.resources import default_bag, default_params
+from planar_vo.io.bag import (
+    IMAGE_TYPES,
+    INFO_TYPE,
+    ODOM_TYPE,
+    open_reader,
+    read_messages,
+    typestore,
+)
+from planar_vo.io.errors import BagError, ResourceError
 from planar_vo.ros.health import RECENT_FRAMES
 from planar_vo.ros.messages import (
     ImageError,
@@ -49,10 +52,20 @@ from planar_vo.ros.messages import (
     planar_pose,
     stamp_to_seconds,
 )
-from planar_vo.tools.progress import Progress
+from planar_vo.tools.cli import (
+    Parser,
+    add_bag_argument,
+    add_node_params_argument,
+    bag_or_default,
+    node_params_or_default,
+    run,
+)
+from planar_vo.tools.errors import LiveError
+from planar_vo.tools.experiments.opencv_pipeline import OpenCVReference
 
 __all__ = ['main', 'run_benchmark']
 
+PROG = 'planar_vo_bench'
 _ACCURACY_KEYS = ('path_length_m', 't_rel_percent', 'r_rel_deg_per_100m', 'ate_rmse_m',
                   'scale_ratio')
 # max_features the README advises for a sprung body (estimate_attitude): its cost is timed.
@@ -66,14 +79,13 @@ def _read_raw(bag: Path) -> tuple[list[tuple[str, bytes]], Any, dict[float, np.n
     """
     images, info, truth = [], None, {}
     with open_reader(bag) as reader:
-        wanted = [c for c in reader.connections if c.msgtype in (
-            'sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage',
-            'sensor_msgs/msg/CameraInfo', 'nav_msgs/msg/Odometry')]
-        for conn, _, raw in reader.messages(connections=wanted):
-            if conn.msgtype.endswith('CameraInfo'):
-                info = info or reader.deserialize(raw, conn.msgtype)
-            elif conn.msgtype.endswith('Odometry'):
-                msg = reader.deserialize(raw, conn.msgtype)
+        wanted = [c for c in reader.connections if c.msgtype in (*IMAGE_TYPES, INFO_TYPE,
+                                                                  ODOM_TYPE)]
+        for conn, raw, msg in read_messages(reader, bag, wanted,
+                                            decode=lambda c: c.msgtype not in IMAGE_TYPES):
+            if conn.msgtype == INFO_TYPE:
+                info = info or msg
+            elif conn.msgtype == ODOM_TYPE:
                 truth[stamp_to_seconds(msg.header.stamp)] = planar_pose(msg.pose.pose)
             else:
                 images.append((conn.msgtype, bytes(raw)))
@@ -105,7 +117,7 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
     images = images[:frames] if frames else images
     camera = camera_info_to_model(info)
     passes = 3
-    bar = Progress((passes + 1) * len(images), 'bench', enabled=progress)
+    bar = tqdm(total=(passes + 1) * len(images), desc='bench', unit='frame', disable=not progress)
 
     # 1-3. Whole frames (decode from CDR bytes + the full per-frame odometry), the time the
     # tracker spends inside them (KLT from the predicted positions, and detection) and the
@@ -148,7 +160,7 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
                 poses.append(result.pose)
                 reference_poses.append(reference_pose)
                 tracks.append((result.tracks, len(reference.points)))
-            bar.update(k * len(images) + i + 1)
+            bar.update()
 
     # Frame-to-frame correspondences (every frame a reference), as the pipeline forms them.
     tracker = Tracker(max_features=params['max_features'], quality_level=params['quality_level'],
@@ -186,7 +198,7 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
               decoded[i][1] - decoded[i - 1][1], model, params['horizon_margin'])
         for i in range(1, len(decoded))]
     for i, pairs in enumerate(correspondences):
-        bar.update(passes * len(images) + i + 1)
+        bar.update()
         if pairs is None:
             continue
         for suffix, data in (('', pairs), (' (30% outliers)', _mismatch(pairs, 0.3, i))):
@@ -234,7 +246,7 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
     accuracy = {}
     if all(stamp in truth for stamp in stamps):
         truth_poses = np.array([truth[stamp] for stamp in stamps])
-        accuracy = {name: {key: value for key, value in evaluate.metrics(
+        accuracy = {name: {key: value for key, value in metrics(
             np.array(estimate), truth_poses).items() if key in _ACCURACY_KEYS}
             for name, estimate in (('planar_vo', poses), ('opencv_reference', reference_poses),
                                    ('planar_vo_attitude', attitude_poses))}
@@ -375,50 +387,44 @@ def _ground_pairs(vo: VisualOdometry, ref_px: np.ndarray,
 
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns the exit code."""
-    parser = argparse.ArgumentParser(
-        prog='planar_vo_bench',
+    parser = Parser(
+        prog=PROG,
         description='Time the planar_vo pipeline against OpenCV baselines and KLT tracking '
                     'on one bag, in one run; prints medians and the ratios the design bars '
                     'are about.')
-    parser.add_argument('bag', nargs='?',
-                        help='rosbag2 bag (default: the bundled bags/default)')
+    add_bag_argument(parser)
     parser.add_argument('--params', help='params YAML (default: built-in defaults)')
     parser.add_argument('--frames', type=int, help='use only the first N images')
     parser.add_argument('--live', action='store_true',
                         help='also start planar_vo_node and measure its latency and the '
                              'highest frame rate it sustains over DDS (loopback only)')
-    parser.add_argument('--node-params',
-                        help='params YAML for the node with --live (default: the shipped '
-                             'config/planar_vo.yaml)')
+    add_node_params_argument(parser, '--node-params', when=' with --live')
     parser.add_argument('--json', action='store_true', help='print one JSON object')
     args = parser.parse_args(argv)
-    try:
-        params = load_params_file(args.params) if args.params else defaults()
-        if args.frames is not None and args.frames < 2:
-            raise ConfigError('--frames must be at least 2')
-        bag = Path(args.bag) if args.bag else default_bag()
-        result = run_benchmark(bag, params, frames=args.frames,
-                               progress=sys.stderr.isatty())
-        if args.live:
-            from planar_vo.tools.live_session import LiveError
-            try:
-                live = run_live_benchmark(
-                    bag, Path(args.node_params) if args.node_params else default_params())
-            except LiveError as err:
-                raise OSError(str(err)) from None
-            at_30 = next((r for r in live['rates'] if r['rate_hz'] == 30.0), None)
-            if at_30 and 'median_latency_over_median_compute' in at_30:
-                result['ratios']['node_median_latency_at_30hz_over_its_compute'] = at_30[
-                    'median_latency_over_median_compute']
-                result['bars']['node_median_latency_at_30hz_over_its_compute'] = '<= 1.3'
-            if at_30 and 'latency_over_compute' in at_30:  # the tails of a busy machine too
-                result['ratios']['node_mean_latency_at_30hz_over_its_compute'] = at_30[
-                    'latency_over_compute']
-                result['bars']['node_mean_latency_at_30hz_over_its_compute'] = 'no bar'
-            result['live'] = live
-    except (BagError, ConfigError, ImageError, OSError) as err:
-        print(f'planar_vo_bench: error: {err}', file=sys.stderr)
-        return 2
+    return run(PROG, lambda: _main(args),
+               (BagError, ConfigError, ImageError, LiveError, ResourceError, OSError))
+
+
+def _main(args: argparse.Namespace) -> int:
+    params = load_params_file(args.params) if args.params else defaults()
+    if args.frames is not None and args.frames < 2:
+        raise ConfigError('--frames must be at least 2')
+    bag = bag_or_default(args.bag)
+    result = run_benchmark(bag, params, frames=args.frames,
+                           progress=not args.json and sys.stderr.isatty())
+    if args.live:
+        live = run_live_benchmark(
+            bag, node_params_or_default(args.node_params))
+        at_30 = next((r for r in live['rates'] if r['rate_hz'] == 30.0), None)
+        if at_30 and 'median_latency_over_median_compute' in at_30:
+            result['ratios']['node_median_latency_at_30hz_over_its_compute'] = at_30[
+                'median_latency_over_median_compute']
+            result['bars']['node_median_latency_at_30hz_over_its_compute'] = '<= 1.3'
+        if at_30 and 'latency_over_compute' in at_30:  # the tails of a busy machine too
+            result['ratios']['node_mean_latency_at_30hz_over_its_compute'] = at_30[
+                'latency_over_compute']
+            result['bars']['node_mean_latency_at_30hz_over_its_compute'] = 'no bar'
+        result['live'] = live
     if args.json:
         print(json.dumps(result, indent=2))
         return 0

@@ -29,19 +29,18 @@ from planar_vo.core.config import (
     validate,
 )
 from planar_vo.core.estimation.calibration import MountingEstimate
-from planar_vo.io.bag import BagError
-from planar_vo.tools.replay import ReplayError, replay
+from planar_vo.io.errors import BagError
+from planar_vo.tools.cli import Parser, add_topic_arguments, positive_float, run
+from planar_vo.tools.errors import CalibrationError, ReplayError
+from planar_vo.tools.replay import replay
 
 __all__ = ['main', 'calibrate']
 
+PROG = 'planar_vo_calibrate'
 _ANGLES = ('camera_pitch', 'camera_roll', 'camera_yaw')
 # A value whose standard deviation is above this was not determined by the drive.
 _UNDETERMINED = {'camera_pitch': math.radians(1.0), 'camera_roll': math.radians(1.0),
                  'camera_yaw': math.radians(1.0), 'camera_x': 0.2}
-
-
-class CalibrationError(RuntimeError):
-    """The drive cannot calibrate anything (too short, no motion)."""
 
 
 def calibrate(bag: str | Path, params: dict[str, Any], *, image_topic: str | None = None,
@@ -91,9 +90,9 @@ def _raw_section(path: Path) -> dict[str, Any]:
     return dict(params_section(read_params_yaml(path)) or {})
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog='planar_vo_calibrate',
+def _parser() -> Parser:
+    p = Parser(
+        prog=PROG,
         description='Estimate the camera mounting (camera_pitch, camera_roll, camera_yaw, '
                     'camera_x; camera_height with --known-distance) from a recorded drive '
                     'and write it to a new params file. Drive straight and through turns: '
@@ -103,9 +102,8 @@ def _parser() -> argparse.ArgumentParser:
                    help='the params file to start from (planar_vo: ros__parameters:)')
     p.add_argument('--output', required=True, metavar='OUT.yaml',
                    help="where to write IN's parameters with the calibrated mounting")
-    p.add_argument('--image-topic', help='image topic (default: the only one in the bag)')
-    p.add_argument('--camera-info-topic', help='CameraInfo topic (default: the only one)')
-    p.add_argument('--known-distance', type=float, metavar='METRES',
+    add_topic_arguments(p)
+    p.add_argument('--known-distance', type=positive_float, metavar='METRES',
                    help='true length of the drive: also calibrates camera_height')
     p.add_argument('--json', action='store_true', help='print one JSON object, no table')
     return p
@@ -113,33 +111,24 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns the exit code."""
-    parser = _parser()
-    parser.error = lambda message: parser.exit(  # type: ignore[method-assign]
-        2, f'planar_vo_calibrate: error: {message}\n')
-    args = parser.parse_args(argv)
-    try:
-        if args.known_distance is not None and not (
-                math.isfinite(args.known_distance) and args.known_distance > 0):
-            raise ConfigError(f'--known-distance must be a positive length in metres, got '
-                              f'{args.known_distance}')
-        params = load_params_file(args.params)
-        output = Path(args.output)
-        if output.exists():
-            raise ConfigError(f'output {output} exists: choose a new path or remove it')
-        result = calibrate(args.bag, params, image_topic=args.image_topic,
-                           camera_info_topic=args.camera_info_topic,
-                           known_distance=args.known_distance,
-                           progress=not args.json and sys.stderr.isatty())
-        section = {**_raw_section(Path(args.params)), **result['values']}
-        validate(section)
-        output.write_text(yaml.safe_dump({NODE_NAME: {'ros__parameters': section}},
-                                         sort_keys=False))
-    except (BagError, ConfigError, ReplayError, CalibrationError, OSError) as err:
-        print(f'planar_vo_calibrate: error: {err}', file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print('planar_vo_calibrate: interrupted', file=sys.stderr)
-        return 130
+    args = _parser().parse_args(argv)
+    return run(PROG, lambda: _main(args),
+               (BagError, ConfigError, ReplayError, CalibrationError, OSError))
+
+
+def _main(args: argparse.Namespace) -> int:
+    params = load_params_file(args.params)
+    output = Path(args.output)
+    if output.exists():
+        raise ConfigError(f'output {output} exists: choose a new path or remove it')
+    result = calibrate(args.bag, params, image_topic=args.image_topic,
+                       camera_info_topic=args.camera_info_topic,
+                       known_distance=args.known_distance,
+                       progress=not args.json and sys.stderr.isatty())
+    section = {**_raw_section(Path(args.params)), **result['values']}
+    validate(section)
+    output.write_text(yaml.safe_dump({NODE_NAME: {'ros__parameters': section}},
+                                     sort_keys=False))
     result['changes'] = {name: value - params[name] for name, value in result['values'].items()}
     result['output'] = str(output)
     if args.json:

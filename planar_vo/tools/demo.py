@@ -15,16 +15,26 @@ from typing import Any
 
 import numpy as np
 
-from planar_vo.core import evaluate
 from planar_vo.core.config import ConfigError, load_params_file
-from planar_vo.io.bag import BagError
-from planar_vo.io.resources import default_bag, default_params
+from planar_vo.core.metrics import associate, metrics
+from planar_vo.io.errors import BagError
 from planar_vo.ros.messages import planar_pose
-from planar_vo.tools.live_session import BagStream, LiveError, LiveSession
+from planar_vo.tools.cli import (
+    Parser,
+    add_bag_argument,
+    add_node_params_argument,
+    bag_or_default,
+    node_params_or_default,
+    run,
+)
+from planar_vo.tools.errors import LiveError
+from planar_vo.tools.live_session import BagStream, LiveSession
+from planar_vo.tools.plots import plot_trajectories
 from planar_vo.tools.replay import replay
 
 __all__ = ['main', 'run_demo']
 
+PROG = 'planar_vo_demo'
 
 def run_demo(bag: Path, params_file: Path, *, plot: Path | None = None,
              log: Path | None = None) -> dict[str, Any]:
@@ -50,53 +60,44 @@ def run_demo(bag: Path, params_file: Path, *, plot: Path | None = None,
     }
     offline = replay(bag, params)
     off_stamps, off_poses = offline.estimate.arrays()
-    ia, ib = evaluate.associate(np.array(got), off_stamps)
+    ia, ib = associate(np.array(got), off_stamps)
     if len(ia):
         out['live_vs_replay_max_position_difference_m'] = float(
             np.max(np.hypot(*(live[ia, :2] - off_poses[ib, :2]).T)))
     trajectories = {'planar_vo_node (live, DDS)': live, 'planar_vo_replay': off_poses}
     if stream.truth:
         truth_stamps = np.array(sorted(stream.truth))
-        ia, ib = evaluate.associate(np.array(got), truth_stamps)
+        ia, ib = associate(np.array(got), truth_stamps)
         truth = np.array([stream.truth[s] for s in truth_stamps])
         if len(ia) > 1:
-            out['accuracy'] = evaluate.metrics(live[ia], truth[ib])
+            out['accuracy'] = metrics(live[ia], truth[ib])
         trajectories = {'ground truth': truth, **trajectories}
     if plot:
-        evaluate.plot_trajectories(plot, trajectories, title=f'{bag.name}: node over DDS')
+        plot_trajectories(plot, trajectories, title=f'{bag.name}: node over DDS')
         out['plot'] = str(plot)
     return out
 
 
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns the exit code."""
-    p = argparse.ArgumentParser(
-        prog='planar_vo_demo',
+    p = Parser(
+        prog=PROG,
         description='Start planar_vo_node, play a bag into it over DDS (loopback only) at '
                     'its own rate, and report accuracy against the ground truth, latency, '
                     'and agreement with the offline planar_vo_replay.')
-    p.add_argument('bag', nargs='?',
-                   help='rosbag2 bag with images, CameraInfo and optionally ground truth '
-                        '(default: the bundled bags/default, from the source tree or '
-                        'share/planar_vo)')
-    p.add_argument('--params', help='params YAML for the node (default: the shipped '
-                                    'config/planar_vo.yaml)')
+    add_bag_argument(p, 'rosbag2 bag with images, CameraInfo and optionally ground truth')
+    add_node_params_argument(p)
     p.add_argument('--plot', metavar='OUT.png', help='plot the trajectories here')
     p.add_argument('--log', metavar='FILE', help="write the node's output here")
     p.add_argument('--json', action='store_true', help='print one JSON object')
     args = p.parse_args(argv)
-    try:
-        bag = Path(args.bag) if args.bag else default_bag()
-        params = Path(args.params) if args.params else default_params()
-        result = run_demo(bag, params,
-                          plot=Path(args.plot) if args.plot else None,
-                          log=Path(args.log) if args.log else None)
-    except (BagError, ConfigError, LiveError, OSError) as err:
-        print(f'planar_vo_demo: error: {err}', file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print('planar_vo_demo: interrupted', file=sys.stderr)
-        return 130
+    return run(PROG, lambda: _main(args), (BagError, ConfigError, LiveError, OSError))
+
+
+def _main(args: argparse.Namespace) -> int:
+    result = run_demo(bag_or_default(args.bag), node_params_or_default(args.params),
+                      plot=Path(args.plot) if args.plot else None,
+                      log=Path(args.log) if args.log else None)
     if args.json:
         print(json.dumps(result, indent=2))
         return 0

@@ -20,16 +20,13 @@ from typing import Any
 
 import numpy as np
 
-from planar_vo.io.bag import BagError, open_reader
+from planar_vo.io.bag import IMAGE_TYPES, INFO_TYPE, ODOM_TYPE, open_reader, read_messages
+from planar_vo.io.errors import BagError
 from planar_vo.io.resources import executable
 from planar_vo.ros.messages import planar_pose, stamp_to_seconds
-from planar_vo.tools.replay import IMAGE_TYPES
+from planar_vo.tools.errors import LiveError
 
-__all__ = ['BagStream', 'LiveSession', 'LiveError', 'local_dds_env']
-
-
-class LiveError(RuntimeError):
-    """The node did not start, answer, or connect in time."""
+__all__ = ['BagStream', 'LiveSession', 'local_dds_env']
 
 
 def local_dds_env() -> dict[str, str]:
@@ -63,17 +60,17 @@ class BagStream:
         """Pair every image with the CameraInfo of the same stamp (or the latest one)."""
         images, infos, truth, image_type = [], {}, {}, None
         with open_reader(path) as reader:
-            for conn, _, raw in reader.messages():
+            wanted = [c for c in reader.connections if c.msgtype in (*IMAGE_TYPES, INFO_TYPE,
+                                                                      ODOM_TYPE)]
+            for conn, raw, msg in read_messages(reader, path, wanted):
+                stamp = stamp_to_seconds(msg.header.stamp)
                 if conn.msgtype in IMAGE_TYPES:
                     image_type = conn.msgtype
-                    msg = reader.deserialize(raw, conn.msgtype)
-                    images.append((stamp_to_seconds(msg.header.stamp), bytes(raw)))
-                elif conn.msgtype == 'sensor_msgs/msg/CameraInfo':
-                    msg = reader.deserialize(raw, conn.msgtype)
-                    infos[stamp_to_seconds(msg.header.stamp)] = bytes(raw)
-                elif conn.msgtype == 'nav_msgs/msg/Odometry':
-                    msg = reader.deserialize(raw, conn.msgtype)
-                    truth[stamp_to_seconds(msg.header.stamp)] = planar_pose(msg.pose.pose)
+                    images.append((stamp, bytes(raw)))
+                elif conn.msgtype == INFO_TYPE:
+                    infos[stamp] = bytes(raw)
+                else:
+                    truth[stamp] = planar_pose(msg.pose.pose)
         if not images or not infos:
             raise BagError(f'{path} needs images and CameraInfo to be played into the node')
         latest = next(iter(infos.values()))

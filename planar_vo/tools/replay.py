@@ -10,19 +10,29 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
-from planar_vo.core import evaluate
 from planar_vo.core.config import ConfigError, defaults, load_params_file
 from planar_vo.core.estimation.calibration import MountingEstimate
 from planar_vo.core.geometry.camera import CameraModelError
+from planar_vo.core.metrics import associate, metrics
 from planar_vo.core.odometry import FrameResult, VisualOdometry
-from planar_vo.io.bag import BagError, BagWriter, open_reader
+from planar_vo.io.bag import (
+    IMAGE_TYPES,
+    INFO_TYPE,
+    ODOM_TYPE,
+    BagWriter,
+    open_reader,
+    read_messages,
+)
+from planar_vo.io.errors import BagError
+from planar_vo.io.tum import write_tum
+from planar_vo.ros.camera_frontend import CameraFrontend, Step
 from planar_vo.ros.messages import (
     ImageError,
     camera_info_to_model,
@@ -32,18 +42,13 @@ from planar_vo.ros.messages import (
     planar_pose,
     stamp_to_seconds,
 )
-from planar_vo.ros.pairing import Paired, Pairing
-from planar_vo.tools.progress import Progress
+from planar_vo.tools.cli import Parser, add_topic_arguments, run
+from planar_vo.tools.errors import ReplayError
+from planar_vo.tools.plots import plot_trajectories
 
-__all__ = ['main', 'replay', 'ReplayError', 'Trajectory']
+__all__ = ['main', 'replay', 'Trajectory']
 
-IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
-INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
-ODOM_TYPE = 'nav_msgs/msg/Odometry'
-
-
-class ReplayError(RuntimeError):
-    """The bag cannot be replayed as asked (no images, ambiguous topics, ...)."""
+PROG = 'planar_vo_replay'
 
 
 @dataclass
@@ -114,38 +119,20 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
         wanted = [c for c in (image_conn, info_conn, truth_conn) if c is not None]
         total = sum(c.msgcount for c in conns if c.topic == image_conn.topic)
         writer = BagWriter(output) if output else None
-        vo: VisualOdometry | None = None
-        frames, pairing = 0, Pairing()
+        frames, frontend = 0, CameraFrontend(params)
 
-        def process(ready: list[Paired]) -> None:
-            nonlocal vo
-            for paired in ready:
-                camera = paired.info
-                if camera is None:
-                    _warn_once(warnings, 'images before any CameraInfo were skipped')
-                    continue
-                if not paired.exact:
-                    _warn_once(warnings, 'images without a CameraInfo of their stamp: paired '
-                                         'with the newest CameraInfo')
-                try:
-                    if vo is None:
-                        vo = VisualOdometry.from_params(camera, params)
-                    elif (camera.width, camera.height) != (vo.camera.width,
-                                                           vo.camera.height) or (
-                            not np.array_equal(camera.K, vo.camera.K)
-                            or not np.array_equal(camera.D, vo.camera.D)):
-                        vo.set_camera(camera)  # keeps the old camera if it raises
-                except CameraModelError as err:
-                    _warn_once(warnings, f'CameraInfo refused: {err}')
-                    if vo is None:
-                        continue
-                _process(vo, paired.image, estimate, writer, params, warnings)
+        def process(steps: list[Step]) -> None:
+            for step in steps:
+                for reason in step.reasons:
+                    _warn_once(warnings, reason)
+                if step.process:
+                    _process(frontend.vo, step.image, estimate, writer, params, warnings)
 
-        bar = Progress(total, 'replay', enabled=progress)
+        bar = tqdm(total=total, desc='replay', unit='image', disable=not progress)
         try:
             if writer:
                 writer.open()
-            for conn, msg in _read(reader, wanted, bag):
+            for conn, _, msg in read_messages(reader, bag, wanted):
                 stamp_ns = int(msg.header.stamp.sec) * 10**9 + int(msg.header.stamp.nanosec)
                 if conn.topic == info_conn.topic:
                     try:
@@ -154,38 +141,27 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
                     except CameraModelError as err:
                         _warn_once(warnings, f'CameraInfo refused: {err}')
                         continue
-                    process(pairing.add_info(stamp_ns, camera))
+                    process(frontend.add_info(stamp_ns, camera))
                 elif truth_conn is not None and conn.topic == truth_conn.topic:
                     truth.add(stamp_to_seconds(msg.header.stamp), planar_pose(msg.pose.pose))
                 else:
                     frames += 1
-                    bar.update(frames)
-                    process(pairing.add_image(stamp_ns, msg))
-            process(pairing.flush())
+                    bar.update()
+                    process(frontend.add_image(stamp_ns, msg))
+            process(frontend.flush())
+        except BagError as err:
+            if writer:  # closed below: what was read is kept
+                raise BagError(f'{err}; what was read before is in {output}') from None
+            raise
         finally:
             bar.close()
             if writer:
                 writer.close()
+    vo = frontend.vo
     if vo is None:
         raise ReplayError(f'no usable CameraInfo on {info_conn.topic}')
     return ReplayResult(estimate, truth, dict(vo.counters), warnings, frames,
                         vo.mounting_estimate())
-
-
-def _read(reader: Any, connections: list, bag: str | Path) -> Iterator[tuple[Any, Any]]:
-    """(connection, message) pairs; an error while reading the bag is BagError."""
-    messages, count = reader.messages(connections=connections), 0
-    while True:
-        try:
-            conn, _, raw = next(messages)
-            msg = reader.deserialize(raw, conn.msgtype)
-        except StopIteration:
-            return
-        except Exception as err:  # rosbags raises many kinds on a truncated or corrupt file
-            raise BagError(f'bag {bag} is corrupt after {count} messages ({type(err).__name__}'
-                           f': {err}); what was read before is in the output') from None
-        count += 1
-        yield conn, msg
 
 
 def _process(vo: VisualOdometry, msg: Any, estimate: Trajectory, writer: BagWriter | None,
@@ -230,9 +206,9 @@ def _odometry_cdr(result: FrameResult, header: Any, params: dict[str, Any]) -> b
         result, stamp, params['odom_frame'], params['base_frame']))
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog='planar_vo_replay',
+def _parser() -> Parser:
+    p = Parser(
+        prog=PROG,
         description='Run planar_vo offline over a rosbag2 bag (MCAP or sqlite3, Image or '
                     'CompressedImage), write /odom to a new bag, and score it against '
                     'ground truth when the bag has it.')
@@ -241,8 +217,7 @@ def _parser() -> argparse.ArgumentParser:
                    'same file the node takes; default: the built-in defaults')
     p.add_argument('--output', help='bag to write /odom (nav_msgs/Odometry) to; must not '
                    'exist')
-    p.add_argument('--image-topic', help='image topic (default: the only one in the bag)')
-    p.add_argument('--camera-info-topic', help='CameraInfo topic (default: the only one)')
+    add_topic_arguments(p)
     p.add_argument('--ground-truth-topic', help='nav_msgs/Odometry ground truth (default: '
                    'the only Odometry topic, if any)')
     p.add_argument('--json', action='store_true', help='print one JSON object, no table')
@@ -259,9 +234,9 @@ def report(result: ReplayResult) -> dict[str, Any]:
     stamps, poses = result.estimate.arrays()
     gt_stamps, gt_poses = result.truth.arrays()
     if len(gt_stamps) and len(stamps):
-        ia, ib = evaluate.associate(stamps, gt_stamps)
+        ia, ib = associate(stamps, gt_stamps)
         if len(ia) > 1:
-            out['accuracy'] = evaluate.metrics(poses[ia], gt_poses[ib])
+            out['accuracy'] = metrics(poses[ia], gt_poses[ib])
     learned = result.mounting
     if learned is not None and learned.seconds > 0:  # self-calibration ran
         out['mounting'] = {'seconds': learned.seconds, **{
@@ -278,35 +253,29 @@ def _finite_or_none(value: float) -> float | None:
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns the exit code."""
     args = _parser().parse_args(argv)
-    try:
-        params = load_params_file(args.params) if args.params else defaults()
-        if args.output and Path(args.output).exists():
-            raise ReplayError(f'output {args.output} exists: choose a new path or remove it')
-        result = replay(args.bag, params, output=args.output, image_topic=args.image_topic,
-                        camera_info_topic=args.camera_info_topic,
-                        ground_truth_topic=args.ground_truth_topic,
-                        progress=not args.json and sys.stderr.isatty())
-        summary = report(result)
-        if args.tum:
-            evaluate.write_tum(f'{args.tum}_estimate.txt', *result.estimate.arrays())
-            if len(result.truth.stamps):
-                evaluate.write_tum(f'{args.tum}_truth.txt', *result.truth.arrays())
-        if args.plot:
-            trajectories = {'estimate (planar_vo)': result.estimate.arrays()[1]}
-            if len(result.truth.stamps):
-                trajectories = {'ground truth': result.truth.arrays()[1], **trajectories}
-            evaluate.plot_trajectories(args.plot, trajectories, title=Path(args.bag).name)
-            summary['plot'] = str(args.plot)
-    except (BagError, ConfigError, ReplayError, OSError) as err:
-        print(f'planar_vo_replay: error: {err}', file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print('planar_vo_replay: interrupted', file=sys.stderr)
-        return 130
-    except Exception as err:  # noqa: BLE001 - a bug: one line, never a traceback
-        print(f'planar_vo_replay: internal error: {type(err).__name__}: {err} (please '
-              'report this line)', file=sys.stderr)
-        return 1
+    return run(PROG, lambda: _main(args), (BagError, ConfigError, ReplayError, OSError),
+               internal=True)
+
+
+def _main(args: argparse.Namespace) -> int:
+    params = load_params_file(args.params) if args.params else defaults()
+    if args.output and Path(args.output).exists():
+        raise ReplayError(f'output {args.output} exists: choose a new path or remove it')
+    result = replay(args.bag, params, output=args.output, image_topic=args.image_topic,
+                    camera_info_topic=args.camera_info_topic,
+                    ground_truth_topic=args.ground_truth_topic,
+                    progress=not args.json and sys.stderr.isatty())
+    summary = report(result)
+    if args.tum:
+        write_tum(f'{args.tum}_estimate.txt', *result.estimate.arrays())
+        if len(result.truth.stamps):
+            write_tum(f'{args.tum}_truth.txt', *result.truth.arrays())
+    if args.plot:
+        trajectories = {'estimate (planar_vo)': result.estimate.arrays()[1]}
+        if len(result.truth.stamps):
+            trajectories = {'ground truth': result.truth.arrays()[1], **trajectories}
+        plot_trajectories(args.plot, trajectories, title=Path(args.bag).name)
+        summary['plot'] = str(args.plot)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:

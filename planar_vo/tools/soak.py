@@ -13,12 +13,24 @@ import sys
 import time
 from pathlib import Path
 
-from planar_vo.io.bag import BagError
-from planar_vo.io.resources import ResourceError, default_bag, default_params
-from planar_vo.tools.live_session import BagStream, LiveError, LiveSession
+from planar_vo.io.errors import BagError, ResourceError
+from planar_vo.tools.cli import (
+    Parser,
+    add_bag_argument,
+    add_node_params_argument,
+    bag_or_default,
+    node_params_or_default,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    run,
+)
+from planar_vo.tools.errors import LiveError
+from planar_vo.tools.live_session import BagStream, LiveSession
 
 __all__ = ['main']
 
+PROG = 'planar_vo_soak'
 
 def resident_mb(pid: int) -> float:
     """Resident memory (VmRSS) of process ``pid``, MB."""
@@ -28,35 +40,35 @@ def resident_mb(pid: int) -> float:
     raise LiveError(f'no VmRSS for process {pid}')
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog='planar_vo_soak', description='Play a bag forward and backward into '
+def _parser() -> Parser:
+    p = Parser(
+        prog=PROG, description='Play a bag forward and backward into '
         'planar_vo_node over loopback DDS for a long time; print frames answered and the '
         "node's resident memory over time.")
-    p.add_argument('bag', nargs='?', help='rosbag2 bag (default: the bundled bags/default)')
-    p.add_argument('--frames', type=int, default=20000, help='frames to send (default 20000)')
-    p.add_argument('--rate', type=float, default=60.0, help='frames per second (default 60)')
-    p.add_argument('--warm-up', type=int, default=2000,
+    add_bag_argument(p)
+    p.add_argument('--frames', type=positive_int, default=20000,
+                   help='frames to send (default 20000)')
+    p.add_argument('--rate', type=positive_float, default=60.0,
+                   help='frames per second (default 60)')
+    p.add_argument('--warm-up', type=non_negative_int, default=2000,
                    help='frames after which memory growth is measured (default 2000)')
-    p.add_argument('--every', type=int, default=2000, help='report every N frames')
-    p.add_argument('--params', help='params YAML for the node (default: the shipped '
-                                    'config/planar_vo.yaml)')
+    p.add_argument('--every', type=positive_int, default=2000, help='report every N frames')
+    add_node_params_argument(p)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns 0 when at least 99 % of frames were answered."""
-    args = _parser().parse_args(argv)
-    if args.frames <= args.warm_up or args.rate <= 0:
-        print('planar_vo_soak: error: --frames must exceed --warm-up and --rate be positive',
-              file=sys.stderr)
-        return 2
-    try:
-        stream = BagStream.read(args.bag or default_bag())
-        params = args.params or default_params()
-    except (BagError, ResourceError) as err:
-        print(f'planar_vo_soak: error: {err}', file=sys.stderr)
-        return 2
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if args.frames <= args.warm_up:
+        parser.error('--frames must exceed --warm-up')
+    return run(PROG, lambda: _main(args), (BagError, ResourceError, LiveError))
+
+
+def _main(args: argparse.Namespace) -> int:
+    stream = BagStream.read(bag_or_default(args.bag))
+    params = node_params_or_default(args.params)
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import CameraInfo, Image
     images = [deserialize_message(raw, Image) for _, raw, _ in stream.frames]
@@ -92,12 +104,6 @@ def main(argv: list[str] | None = None) -> int:
                 print(f'{done:7d} {len(session.received):9d} {mb:12.1f} '
                       f'{time.perf_counter() - t0:10.1f}', flush=True)
         answered = len(session.received)
-    except LiveError as err:
-        print(f'planar_vo_soak: error: {err}', file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print('planar_vo_soak: interrupted', file=sys.stderr)
-        return 130
     finally:
         status = session.close()
     share = answered / args.frames

@@ -18,13 +18,13 @@ import numpy as np
 
 from planar_vo.core import config
 from planar_vo.core.config import mounting_from_params
-from planar_vo.core.estimation.baselines import homography_motion
 from planar_vo.core.estimation.calibration import (
     MountingCalibrator,
     MountingEstimate,
     calibrated_params,
     mounting_advice,
 )
+from planar_vo.core.estimation.opencv_motion import homography_motion
 from planar_vo.core.estimation.ransac import (
     PoseEstimationError,
     RansacResult,

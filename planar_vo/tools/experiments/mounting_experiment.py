@@ -7,9 +7,8 @@ and on a rigid one along the same path, and run through the odometry core:
 - the sprung body with the attitude estimated and the body's pivot configured, the mounting
   kept; the same with self-calibration; OpenCV's per-pair homography on the same tracks;
 - the plain OpenCV pipeline on the same sprung frames (its own tracking over the whole image,
-  :class:`planar_vo.core.estimation.baselines.OpenCVReference`): the route the issue measured the
-  product
-  against, before any of planar_vo's front end.
+  :class:`planar_vo.tools.experiments.opencv_pipeline.OpenCVReference`): the route the issue
+  measured the product against, before any of planar_vo's front end.
 
 Every run is configured with the true mounting and tracks ``TRACKS`` features (what the
 README advises for a sprung body; the same tracks for every variant, so OpenCV's homography and
@@ -20,21 +19,22 @@ in: sprung / rigid mount, and OpenCV / ours (on the same tracks, and as a plain 
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from collections.abc import Callable, Sequence
 
 import numpy as np
+from tqdm import tqdm
 
 from planar_vo import synth
-from planar_vo.core import config, evaluate
+from planar_vo.core import config
 from planar_vo.core.config import mounting_from_params
-from planar_vo.core.estimation.baselines import OpenCVReference
 from planar_vo.core.geometry.camera import CameraModel
 from planar_vo.core.geometry.se2 import compose
+from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry
-from planar_vo.tools.progress import Progress
+from planar_vo.tools.cli import Parser, float_range, int_range, number_list
+from planar_vo.tools.experiments.opencv_pipeline import OpenCVReference
 
 __all__ = ['VARIANTS', 'plain_opencv_path', 'run_drive', 'main']
 
@@ -114,7 +114,7 @@ def run_drive(scenario: str, frames: int, seed: int, rate: float = 30.0,
                 for k, image in enumerate(images):
                     poses.append(vo.process(image, k / rate).pose)
                     tick()
-            met = evaluate.metrics(np.array(poses), np.c_[traj.x, traj.y, traj.yaw])
+            met = metrics(np.array(poses), np.c_[traj.x, traj.y, traj.yaw])
             out[name] = {key: met[key] for key in
                          ('t_rel_percent', 'r_rel_deg_per_100m', 'scale_ratio',
                           'path_length_m')}
@@ -147,57 +147,13 @@ def _print_table(scenario: str, frames: int, rate: float, supersample: int,
           f'plain OpenCV pipeline / ours: {summary["plain_opencv_over_ours"]:.1f}x')
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports a usage error in one line on stderr (exit 2)."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(2, f'{PROG}: error: {message}\n')
+_SEEDS = number_list(int, 'integers', '1,2,3,4',
+                     lambda seeds: min(seeds) >= 0 and len(set(seeds)) == len(seeds),
+                     'distinct and non-negative')
 
 
-def _seeds(text: str) -> list[int]:
-    try:
-        seeds = [int(part) for part in text.split(',')]
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f'must be comma-separated integers like 1,2,3,4, got {text!r}') from None
-    if any(s < 0 for s in seeds) or len(set(seeds)) != len(seeds):
-        raise argparse.ArgumentTypeError(f'must be distinct and non-negative, got {text!r}')
-    return seeds
-
-
-def _integer(text: str) -> int:
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
-
-
-def _frames(text: str) -> int:
-    value = _integer(text)
-    if value < 30:
-        raise argparse.ArgumentTypeError(f'must be at least 30 (t_rel needs a path), got {value}')
-    return value
-
-
-def _rate(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be a number of Hz, got {text!r}') from None
-    if not 5.0 <= value <= 120.0:
-        raise argparse.ArgumentTypeError(f'must be 5 to 120 Hz, got {text}')
-    return value
-
-
-def _supersample(text: str) -> int:
-    value = _integer(text)
-    if not 1 <= value <= 4:
-        raise argparse.ArgumentTypeError(f'must be 1 to 4, got {value}')
-    return value
-
-
-def _build_parser() -> _Parser:
-    parser = _Parser(prog=PROG, description=(
+def _build_parser() -> Parser:
+    parser = Parser(prog=PROG, description=(
         'Render synthetic drives on a sprung car body and on a rigid mount along the same '
         'path, and compare the odometry on both with OpenCV\'s homography on the same tracks '
         'and with a plain OpenCV pipeline on the same frames (the README\'s sprung-body '
@@ -205,14 +161,14 @@ def _build_parser() -> _Parser:
     parser.add_argument('--scenario', choices=SPRUNG, default='car',
                         help='car: pitch ~1 deg, roll ~0.6 deg, bounce ~1.5 cm; rough: twice '
                              'that (default %(default)s)')
-    parser.add_argument('--seeds', type=_seeds, default=[1, 2, 3, 4],
+    parser.add_argument('--seeds', type=_SEEDS, default=[1, 2, 3, 4],
                         help='comma-separated seeds, one drive each (default 1,2,3,4)')
-    parser.add_argument('--frames', type=_frames, default=300,
+    parser.add_argument('--frames', type=int_range(30, why='t_rel needs a path'), default=300,
                         help='frames per drive (default %(default)s: 10 s and 46 m at 30 Hz)')
-    parser.add_argument('--rate', type=_rate, default=30.0, metavar='HZ',
+    parser.add_argument('--rate', type=float_range(5.0, 120.0, 'Hz'), default=30.0, metavar='HZ',
                         help='camera frame rate (default %(default)g; the same path at any rate, '
                              'longer per frame at a lower one)')
-    parser.add_argument('--supersample', type=_supersample, default=1, metavar='S',
+    parser.add_argument('--supersample', type=int_range(1, 4), default=1, metavar='S',
                         help='render S x S rays a pixel, averaged, as a sensor integrates its '
                              'pixel (default 1: one ray, mip-mapped; 2 takes about 2x as long)')
     parser.add_argument('--json', action='store_true',
@@ -223,19 +179,11 @@ def _build_parser() -> _Parser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Command line entry point; returns the exit code (bad arguments exit 2)."""
     args = _build_parser().parse_args(argv)
-    progress = Progress(len(args.seeds) * (2 + len(VARIANTS)) * args.frames, 'drives',
-                        enabled=not args.json and sys.stderr.isatty())
-    done = 0
-
-    def tick() -> None:
-        nonlocal done
-        done += 1
-        progress.update(done)
-
-    drives = {seed: run_drive(args.scenario, args.frames, seed, args.rate, tick=tick,
-                              supersample=args.supersample)
-              for seed in args.seeds}
-    progress.close()
+    with tqdm(total=len(args.seeds) * (2 + len(VARIANTS)) * args.frames, desc='drives',
+              unit='frame', disable=args.json or not sys.stderr.isatty()) as bar:
+        drives = {seed: run_drive(args.scenario, args.frames, seed, args.rate, tick=bar.update,
+                                  supersample=args.supersample)
+                  for seed in args.seeds}
     summary = _summary(drives)
     if args.json:
         print(json.dumps({'scenario': args.scenario, 'frames': args.frames,

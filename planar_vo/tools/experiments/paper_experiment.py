@@ -20,7 +20,6 @@ whatever other sigmas are run. Numpy and OpenCV; matplotlib only for ``--plot``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -40,6 +39,8 @@ from planar_vo.core.geometry.solvers import (
     homography_2point,
     homography_npoint,
 )
+from planar_vo.tools.cli import Parser, fail, non_negative_int, number_list, positive_int
+from planar_vo.tools.plots import pyplot
 
 __all__ = ['SETUP', 'SOLVERS', 'Trials', 'make_trials', 'estimate_all', 'run_experiment',
            'format_table', 'plot_fig5', 'main']
@@ -375,11 +376,7 @@ def format_table(results: Sequence[dict]) -> str:
 
 def plot_fig5(phis: dict[str, np.ndarray], sigma: float, path: str) -> None:
     """Histograms of estimated phi like the paper's Fig. 5 (1-point vs 2-point per model)."""
-    import matplotlib
-
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     truth = TRUE_MOTION['phi']
     finite = np.concatenate([v[np.isfinite(v)] for v in phis.values()])
     half = float(np.clip(np.percentile(np.abs(finite - truth), 90), 0.02, 0.5))
@@ -404,49 +401,6 @@ def plot_fig5(phis: dict[str, np.ndarray], sigma: float, path: str) -> None:
         fig.savefig(path, dpi=100)
     finally:
         plt.close(fig)
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports a usage error in one line on stderr (exit 2)."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        raise _UsageError(message)
-
-
-class _UsageError(Exception):
-    pass
-
-
-def _trials(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'must be at least 1, got {value}')
-    return value
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f'must be non-negative, got {value}')
-    return value
-
-
-def _sigmas(text: str) -> list[float]:
-    try:
-        values = [float(part) for part in text.split(',')]
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f'must be comma-separated numbers like 0,0.5,1, got {text!r}') from None
-    if not all(math.isfinite(v) and v >= 0 for v in values):
-        raise argparse.ArgumentTypeError(
-            f'must be finite and non-negative (pixels), got {text!r}')
-    return values
 
 
 def _check_plot_path(path: str) -> str | None:
@@ -474,19 +428,24 @@ def _check_plot_path(path: str) -> str | None:
     return None
 
 
-def _build_parser() -> _Parser:
-    parser = _Parser(
+_SIGMAS = number_list(float, 'numbers', '0,0.5,1',
+                      lambda values: all(math.isfinite(v) and v >= 0 for v in values),
+                      'finite and non-negative (pixels)')
+
+
+def _build_parser() -> Parser:
+    parser = Parser(
         prog=PROG,
         description='Monte Carlo experiment of Choi et al. (URAI 2010, sec. 4): the paper\'s '
                     'four planar-motion solvers against OpenCV\'s 5-point and 4-point '
                     'baselines, on random ground points seen by a level camera.')
-    parser.add_argument('--trials', type=_trials, default=DEFAULT_TRIALS,
+    parser.add_argument('--trials', type=positive_int, default=DEFAULT_TRIALS,
                         help='Monte Carlo trials per noise level (default %(default)s; '
                              'the paper used 1000)')
-    parser.add_argument('--sigmas', type=_sigmas, default=list(DEFAULT_SIGMAS),
+    parser.add_argument('--sigmas', type=_SIGMAS, default=list(DEFAULT_SIGMAS),
                         help='comma-separated pixel noise standard deviations, added to both '
                              'images (default 0,0.5,1,1.5,2 as in the paper)')
-    parser.add_argument('--seed', type=_seed, default=DEFAULT_SEED,
+    parser.add_argument('--seed', type=non_negative_int, default=DEFAULT_SEED,
                         help='seed of the random points and noise; same seed, same errors '
                              '(default %(default)s)')
     parser.add_argument('--json', action='store_true',
@@ -503,16 +462,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = _build_parser()
     try:
         args = parser.parse_args(argv)
-    except _UsageError as exc:
-        print(f'{PROG}: error: {exc}', file=sys.stderr)
-        return 2
-    except SystemExit as exc:  # --help
+    except SystemExit as exc:  # --help (0) or a usage error, already printed in one line (2)
         return int(exc.code or 0)
     if args.plot is not None:
         problem = _check_plot_path(args.plot)
         if problem:
-            print(f'{PROG}: error: {problem}', file=sys.stderr)
-            return 2
+            return fail(PROG, problem)
 
     data = make_trials(args.trials, args.seed)
     plot_sigma = 1.0  # the paper's Fig. 5
@@ -534,8 +489,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             plot_fig5(paper_phis, plot_sigma, args.plot)
         except (OSError, ValueError) as exc:
-            print(f'{PROG}: error: cannot write plot {args.plot!r}: {exc}', file=sys.stderr)
-            return 2
+            return fail(PROG, f'cannot write plot {args.plot!r}: {exc}')
         print(f'{PROG}: wrote plot to {os.path.abspath(args.plot)}',
               file=sys.stderr if args.json else sys.stdout)
     return 0

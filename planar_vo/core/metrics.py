@@ -1,21 +1,21 @@
-"""Accuracy of a planar trajectory against ground truth, TUM export, and plots.
+"""Accuracy of a planar trajectory against ground truth (numpy only).
 
-Metrics (numpy only):
 - ``t_rel`` (%) and ``r_rel`` (deg/100 m): KITTI's relative errors, averaged over every
   sub-path of fixed lengths. KITTI uses 100..800 m on kilometre-long drives; short
   synthetic bags use 10 %..80 % of the path length, the same proportions.
 - ``ate_rmse`` (m): position RMSE with both trajectories starting at the origin (no
   alignment: the scale comes from the camera height and is part of what is tested).
 - ``final_drift`` (m, and % of the path), ``scale_ratio``: estimated / true path length.
+
+A trajectory is written for ``evo`` by :func:`planar_vo.io.tum.write_tum` and plotted by
+:func:`planar_vo.tools.plots.plot_trajectories`.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
-__all__ = ['associate', 'metrics', 'write_tum', 'plot_trajectories']
+__all__ = ['associate', 'metrics']
 
 SEGMENT_FRACTIONS = np.arange(1, 9) / 10.0
 
@@ -80,36 +80,3 @@ def metrics(estimate: np.ndarray, truth: np.ndarray) -> dict[str, float]:
         'final_yaw_error_deg': float(np.degrees(abs(_relative(gt[-1], est[-1])[2]))),
         'scale_ratio': est_length / length if length > 0 else float('nan'),
     }
-
-
-def write_tum(path: str | Path, stamps: np.ndarray, poses: np.ndarray) -> None:
-    """TUM trajectory file (``t x y z qx qy qz qw``) that ``evo`` reads."""
-    half = 0.5 * poses[:, 2]
-    rows = np.column_stack([stamps, poses[:, 0], poses[:, 1], np.zeros(len(poses)),
-                            np.zeros(len(poses)), np.zeros(len(poses)), np.sin(half),
-                            np.cos(half)])
-    np.savetxt(path, rows, fmt='%.9f', header='timestamp tx ty tz qx qy qz qw')
-
-
-def plot_trajectories(path: str | Path, trajectories: dict[str, np.ndarray],
-                      title: str = '') -> None:
-    """Top view of named (N, 3) trajectories, ground truth first, written to a PNG."""
-    import matplotlib
-
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 6))
-    for i, (name, poses) in enumerate(trajectories.items()):
-        ax.plot(poses[:, 0], poses[:, 1], '-' if i == 0 else '--', lw=2.5 if i == 0 else 1.5,
-                label=name)
-    ax.plot([0], [0], 'ko', label='start')
-    ax.set_aspect('equal', adjustable='datalim')
-    ax.set_xlabel('x (m, odom)')
-    ax.set_ylabel('y (m, odom)')
-    ax.grid(True, alpha=0.3)
-    ax.legend()
-    ax.set_title(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
