@@ -18,11 +18,13 @@ the caller passes (a message, or a message and its decoder), handed back untouch
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from planar_vo.core import config
 from planar_vo.core.geometry.camera import CameraModel, CameraModelError
 from planar_vo.core.odometry import VisualOdometry
 from planar_vo.ros.pairing import Paired, Pairing
@@ -86,7 +88,8 @@ class CameraFrontend:
     with :meth:`VisualOdometry.from_params` on the first camera that it accepts.
     """
 
-    def __init__(self, params: dict[str, Any], pairing: Pairing | None = None) -> None:
+    def __init__(self, params: Mapping[str, Any] | config.Params,
+                 pairing: Pairing | None = None) -> None:
         self.params = params
         self.pairing = pairing if pairing is not None else Pairing()
         self.vo: VisualOdometry | None = None
@@ -109,7 +112,7 @@ class CameraFrontend:
         """Stop waiting: the waiting image, if any, with the newest CameraInfo."""
         return self._steps(self.pairing.flush())
 
-    def rebuild(self, params: dict[str, Any] | None = None) -> None:
+    def rebuild(self, params: Mapping[str, Any] | config.Params | None = None) -> None:
         """A new odometry from the accepted camera (and ``params`` if given), same pose.
 
         Pose, covariance and counters carry over; tracking restarts. Does nothing before the
@@ -122,8 +125,8 @@ class CameraFrontend:
             return
         old, new = self.vo, VisualOdometry.from_params(self.camera, self.params)
         if old is not None:
-            new.pose, new.pose_covariance, new.counters = (
-                old.pose, old.pose_covariance, old.counters)
+            new.set_pose(old.pose, old.pose_covariance)
+            new.counters = old.counters
         self.vo = new
 
     def _steps(self, ready: list[Paired]) -> list[Step]:

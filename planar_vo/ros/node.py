@@ -37,9 +37,9 @@ from planar_vo.core.config import mounting_from_params
 from planar_vo.core.geometry.camera import CameraModelError
 from planar_vo.core.odometry import VisualOdometry
 from planar_vo.ros import messages
+from planar_vo.ros.camera_frontend import CHANGED, CREATED, CameraFrontend, Step
 from planar_vo.ros.health import Health
 from planar_vo.ros.outputs import OdometryOutputs
-from planar_vo.ros.pairing import Pairing
 from planar_vo.ros.parameters import SCHEMA_BY_NAME, StartupError, declare_schema
 from planar_vo.ros.throttle import WarningThrottle
 
@@ -88,16 +88,14 @@ class PlanarVoNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('planar_vo', **kwargs)
-        self.vo: VisualOdometry | None = None
-        self.camera = None
         self._calibration = None  # (the last accepted CameraInfo's fields, its CameraModel)
         self._throttle = WarningThrottle(_WARN_EVERY, _WARN_CAUSES)
         self._errors = 0  # unexpected exceptions (bugs) caught in callbacks
         self._mounting_advised: set[str] = set()
-        self._pairing = Pairing()
         self._health = Health()
         self._camera_frame = ''
         self.params = self._declare_parameters()
+        self._frontend = CameraFrontend(self.params)
         self.add_post_set_parameters_callback(self._on_params_set)
 
         p = self.params
@@ -158,11 +156,13 @@ class PlanarVoNode(Node):
             self.vo.set_mounting(mounting_from_params(self.params))
             self.get_logger().info(f'camera mounting changed: {", ".join(sorted(names))}')
 
+    @property
+    def vo(self) -> VisualOdometry | None:
+        """The odometry, once a CameraInfo was accepted."""
+        return self._frontend.vo
+
     def _rebuild(self) -> None:
-        old, self.vo = self.vo, VisualOdometry.from_params(self.camera, self.params)
-        if old is not None:
-            self.vo.set_pose(old.pose, old.pose_covariance)
-            self.vo.counters = old.counters
+        self._frontend.rebuild(self.params)
 
     # ---------------------------------------------------------------- input
     def _warn(self, text: str, *, error: bool = False) -> None:
@@ -184,8 +184,8 @@ class PlanarVoNode(Node):
         except CameraModelError as err:
             self._warn(f'camera_info refused: {err}')
             return
-        for paired in self._pairing.add_info(_stamp_ns(msg.header.stamp), camera):
-            self._process(paired)
+        for step in self._frontend.add_info(_stamp_ns(msg.header.stamp), camera):
+            self._process(step)
 
     def _camera_model(self, msg: CameraInfo):
         """The CameraModel of ``msg``; the same object again when the calibration repeats.
@@ -203,25 +203,6 @@ class PlanarVoNode(Node):
         self._calibration = (calibration, camera)
         return camera
 
-    def _set_camera(self, camera) -> None:
-        if camera is self.camera:  # the same calibration repeated
-            return
-        if self.camera is not None and (
-                camera.width, camera.height, camera.distortion_model) == (
-                self.camera.width, self.camera.height, self.camera.distortion_model) and (
-                (camera.K == self.camera.K).all() and camera.D.shape == self.camera.D.shape
-                and (camera.D == self.camera.D).all()):
-            return
-        if self.vo is None:
-            self.vo = VisualOdometry.from_params(camera, self.params)
-            self.get_logger().info(f'camera: {camera.width}x{camera.height}, '
-                                   f'fx {camera.K[0, 0]:.1f}, {camera.distortion_model}')
-        else:
-            self.vo.set_camera(camera)
-            self.get_logger().info(f'camera_info changed: {camera.width}x{camera.height}, '
-                                   f'fx {camera.K[0, 0]:.1f}')
-        self.camera = camera
-
     @_guarded('an image')
     def _on_image(self, msg: Image, info: dict) -> None:
         self._receive(msg, messages.image_to_gray, info)
@@ -232,35 +213,39 @@ class PlanarVoNode(Node):
 
     def _receive(self, msg, decode, info: dict) -> None:
         self._health.image_received(_received_monotonic(info))
-        for paired in self._pairing.add_image(_stamp_ns(msg.header.stamp), (msg, decode)):
-            self._process(paired)
-        if self._pairing.waiting:
+        for step in self._frontend.add_image(_stamp_ns(msg.header.stamp), (msg, decode)):
+            self._process(step)
+        if self._frontend.waiting:
             self._pairing_timer.reset()
 
     @_guarded('an image')
     def _stop_waiting(self) -> None:
         """The CameraInfo of the waiting image did not come in time: use the newest."""
         self._pairing_timer.cancel()
-        for paired in self._pairing.flush():
-            self._process(paired)
+        for step in self._frontend.flush():
+            self._process(step)
 
-    def _process(self, paired) -> None:
-        """One image with the CameraInfo it was paired with."""
-        msg, decode = paired.image
-        if paired.info is None:
-            self._health.frame_failed('no camera_info')
-            self._warn(f'no valid camera_info on {self._info_sub.topic_name} yet: image '
-                       'skipped')
+    def _process(self, step: Step) -> None:
+        """One image with the CameraInfo it was paired with (see CameraFrontend)."""
+        msg, decode = step.image
+        if step.refused is not None:
+            self._warn(f'camera_info refused: {step.refused}')
+        if not step.process:
+            if step.refused is None:  # no CameraInfo yet
+                self._health.frame_failed('no camera_info')
+                self._warn(f'no valid camera_info on {self._info_sub.topic_name} yet: image '
+                           'skipped')
             return
-        if not paired.exact and self._pairing.unmatched:
+        if not step.exact and step.unmatched:
             self._warn('no camera_info with the image\'s stamp (the driver stamps them '
                        'differently?): using the newest camera_info')
-        try:
-            self._set_camera(paired.info)
-        except CameraModelError as err:  # the odometry keeps its previous camera
-            self._warn(f'camera_info refused: {err}')
-            if self.vo is None:
-                return
+        camera = self._frontend.camera
+        if step.camera == CREATED:
+            self.get_logger().info(f'camera: {camera.width}x{camera.height}, '
+                                   f'fx {camera.K[0, 0]:.1f}, {camera.distortion_model}')
+        elif step.camera == CHANGED:
+            self.get_logger().info(f'camera_info changed: {camera.width}x{camera.height}, '
+                                   f'fx {camera.K[0, 0]:.1f}')
         self._camera_frame = msg.header.frame_id
         try:
             gray = decode(msg)
