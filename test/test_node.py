@@ -23,10 +23,12 @@ CONFIG = resources.default_params()
 DEFAULT_BAG = resources.default_bag()
 MAX_FRAMES = 300
 # One good step of node B (two bag frames 1/15 s apart, about 0.3 m) against the bag's truth.
-# Measured: 0.14-0.27 mm and 0.002-0.003 deg; up to 2.97 mm and 0.0078 deg right after the
-# blank frames (which frames of the bag node B sees depends on best-effort losses).
-STEP_ERROR_M = 0.008
-STEP_YAW_ERROR_RAD = np.radians(0.02)
+# Measured: 0.14-0.27 mm and 0.002-0.003 deg; right after the blank frames up to 2.97 mm and
+# 0.008 deg in one run, 5.5 mm and 0.026 deg in another (which frames of the bag node B sees
+# depends on best-effort losses and on how many frames the warnings took): noisy, so the
+# bounds are 2.7x the worst of the two runs.
+STEP_ERROR_M = 0.015
+STEP_YAW_ERROR_RAD = np.radians(0.07)
 
 
 def _node_exe() -> str:
