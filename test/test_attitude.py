@@ -93,8 +93,8 @@ def test_recovers_known_tilts_with_a_consistent_covariance():
     errors = np.array(errors)
     spread = errors.std(axis=0)
     assert np.all(np.abs(errors.mean(axis=0)) < 4 * spread / np.sqrt(len(errors)))
-    assert np.degrees(spread[3:]).max() < 0.2  # a tenth of a degree from one frame pair
-    assert 2.0 < np.mean(nees) < 4.5  # 3 is ideal
+    assert np.degrees(spread[3:]).max() < 0.13  # from one frame pair; measured 0.054 deg
+    assert 2.0 < np.mean(nees) < 4.5  # 3 is ideal; measured 2.66
 
 
 def test_a_jolt_between_frames_is_found_from_a_wide_start_threshold():
@@ -119,7 +119,7 @@ def test_a_jolt_between_frames_is_found_from_a_wide_start_threshold():
     prior = AttitudePrior(tilt_1, rate / 100, rate, np.zeros(3), rate * 100)
     joint = refine_with_attitude(motion, v1, m2, MOUNTING, prior, focal_px=f,
                                  threshold_px=0.5, start_threshold_px=8.0)
-    assert abs(np.degrees(joint.attitude[1] - tilt_2[1])) < 0.03  # of the 0.35
+    assert abs(np.degrees(joint.attitude[1] - tilt_2[1])) < 0.02  # of the 0.35; 0.0074
     assert np.count_nonzero(joint.inliers & ~outlier) > 0.85 * np.count_nonzero(~outlier)
     assert not np.any(joint.inliers & outlier)
     try:
@@ -142,7 +142,7 @@ def test_the_prior_holds_what_the_data_cannot_see():
     prior = AttitudePrior(np.zeros(3), spread, spread * 1e-4, np.zeros(3), spread)
     joint = refine_with_attitude(motion, v1, m2 + rng.normal(0, 0.3 / 460, m2.shape), MOUNTING,
                                  prior, focal_px=460.0, threshold_px=2.0)
-    assert np.all(np.abs(joint.attitude[:2]) < np.radians(0.2))
+    assert np.all(np.abs(joint.attitude[:2]) < np.radians(0.03))  # measured 0.011 deg
     assert np.all(np.sqrt(np.diag(joint.attitude_covariance)[:2]) > np.radians(0.005))
 
 
@@ -166,7 +166,7 @@ def test_height_walk_follows_the_bounce_not_the_noise_or_the_bias():
             declared.append(walk.error_variance)
             learned.append(max(walk.variance, 0.0))
         rms = np.sqrt(np.mean(np.square(errors[-300:])))
-        assert rms < 0.0015, rms
+        assert rms < 0.0015, rms  # measured 1.3 mm (bounce), 0.72 mm (none)
         assert low <= np.sqrt(np.mean(learned[-300:])) <= high, np.sqrt(np.mean(learned[-300:]))
         assert rms ** 2 <= np.mean(declared[-300:]) <= (0.6 * amplitude) ** 2 + 4 * rms ** 2
     # A rigid mount (the body's own changes near zero): the noise and the bias are not summed.
@@ -193,7 +193,7 @@ def test_height_walk_bias_is_not_thrown_by_a_slow_bounce():
             mean += dt / 5.0 * (change - mean)
             drifts.append(walk.drift)
             running_mean.append(mean / dt)
-        assert np.abs(np.array(drifts[-300:]) - 1.2e-3).max() < 0.8e-3
+        assert np.abs(np.array(drifts[-300:]) - 1.2e-3).max() < 0.8e-3  # 0.42-0.56e-3
         assert np.abs(np.array(running_mean[-300:]) - 1.2e-3).max() > 1.5e-3  # the old way
 
 
@@ -212,7 +212,7 @@ def test_self_calibration_reports_the_uncertainty_of_what_it_applied():
         motion = np.array([c * rho - s * slip, s * rho + c * slip, yaw])
         calibrator.add(motion, cov, np.zeros(3), 1 / 30)
     assert calibrator.apply()
-    assert abs(calibrator.working.yaw - (MOUNTING.yaw - eta)) < np.radians(0.03)
+    assert abs(calibrator.working.yaw - (MOUNTING.yaw - eta)) < np.radians(0.03)  # 0.010
     applied = calibrator.applied_covariance()
     yaw_std = calibrator.estimate().std['camera_yaw']
     assert 0 < applied[0, 0] and np.isclose(np.sqrt(applied[0, 0]), yaw_std)

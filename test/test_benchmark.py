@@ -26,7 +26,7 @@ def test_reports_the_reference_pipeline_ratios_and_the_runs_accuracy(capsys):
     assert np.isfinite(median['whole_frame_with_attitude'])
     assert ratios['attitude_over_whole_frame'] == pytest.approx(
         median['whole_frame_with_attitude'] / median['whole_frame_with_decode'])
-    assert abs(out['accuracy']['planar_vo_attitude']['scale_ratio'] - 1) < 0.02
+    assert abs(out['accuracy']['planar_vo_attitude']['scale_ratio'] - 1) < 0.0003  # 0.99991
     # And with the tracks advised for a sprung body.
     assert ratios['attitude_700_tracks_over_whole_frame'] == pytest.approx(
         median['whole_frame_with_attitude_700_tracks'] / median['whole_frame_with_decode'])
@@ -39,7 +39,8 @@ def test_reports_the_reference_pipeline_ratios_and_the_runs_accuracy(capsys):
     # Accuracy against the bag's ground truth, for both (the reference is the cruder one).
     ours, reference = out['accuracy']['planar_vo'], out['accuracy']['opencv_reference']
     assert ours['path_length_m'] > 3 and ours['path_length_m'] == reference['path_length_m']
-    assert abs(ours['scale_ratio'] - 1) < 0.01 and ours['t_rel_percent'] < 0.5
+    # Measured: ours 0.0513 % and 0.99976; the reference 8.0 % and 0.933 (bounds kept).
+    assert abs(ours['scale_ratio'] - 1) < 0.0007 and ours['t_rel_percent'] < 0.13
     assert abs(reference['scale_ratio'] - 1) < 0.1 and reference['t_rel_percent'] < 10
 
 

@@ -30,6 +30,10 @@ SCENARIOS = [
                                ('tight', 150, 30.0), ('obstacles', 150, 30.0),
                                ('default', 90, 15.0), ('car', 150, 30.0), ('rough', 150, 30.0)]]
 UNMEASURED = 1.0
+# Measured mean NEES (deterministic), twist / 1 s pose: straight 2.41 / 2.02, gentle 2.60 /
+# 2.00, tight 2.78 / 2.69, obstacles 2.81 / 4.07, default 1.32 / 1.92, car 3.72 / 3.28, rough
+# 2.95 / 3.89; the bundled bag's twist 1.15. The 1-6 band is kept: a consistency band around
+# the ideal 3, within 2-3x of every value but `default`'s twist (4.5x).
 
 
 def relative(a, b):
@@ -142,8 +146,10 @@ def test_a_filter_fusing_the_twist_stays_consistent(scenario, frames, rate, whee
         error = ekf.x[:3] - relative(truth[1], truth[k])
         error[2] = wrap(error[2])
         pose_nees.append(nees(error, ekf.P[:3, :3]))
+    # Measured: twist 1.33-4.15; pose 0.004-0.30 (the white-acceleration model integrates
+    # a conservative pose), so 1.0 bounds it.
     assert 1.0 <= np.mean(twist_nees) <= 6.0, np.mean(twist_nees)
-    assert np.mean(pose_nees) <= 6.0, np.mean(pose_nees)
+    assert np.mean(pose_nees) <= 1.0, np.mean(pose_nees)
 
 
 def odometry_twists(bag, topic):

@@ -78,9 +78,9 @@ def test_installed_demo_without_arguments(colcon_install, tmp_path):
     assert Path(sent[1]) == share / 'bags' / 'default'
     assert int(sent[2]) == int(sent[3]) > 50
     t_rel = float(re.search(r't_rel ([\d.]+) %', out.stdout)[1])
-    assert t_rel < 1.0  # the design's bar, against the bag's ground truth
+    assert t_rel < 0.07  # against the bag's ground truth; measured 0.027 %
     diff = float(re.search(r'max position difference ([\d.]+) m', out.stdout)[1])
-    assert diff < 1e-3  # the installed node and the offline replay agree
+    assert diff < 1e-4  # the installed node and the offline replay agree (printed 0.0000)
 
 
 def test_tests_run_against_the_install_find_every_executable(colcon_install):

@@ -35,9 +35,11 @@ def car_at_10_hz():
     return renderer, traj, [renderer.render_frame(traj, k) for k in range(12)]
 
 
+# Measured, worst step: `default` 2.6 mm / 0.67 mrad, `tight` 1.0 mm / 0.59 mrad, `car`
+# 24.9 mm / 0.82 mrad.
 @pytest.mark.parametrize('scenario, rate, position_m, yaw_mrad', [
-    ('default', 10.0, 0.01, 1.5),  # rigid mount: only the search's own error
-    ('tight', 15.0, 0.01, 2.5),  # turning hard
+    ('default', 10.0, 0.006, 1.5),  # rigid mount: only the search's own error
+    ('tight', 15.0, 0.003, 1.5),  # turning hard
     ('car', 10.0, 0.05, 2.5),  # the body's tilt is not searched
 ])
 def test_search_finds_the_true_motion(scenario, rate, position_m, yaw_mrad):
@@ -64,9 +66,10 @@ def test_search_is_not_moved_by_a_gain_change_and_finds_nothing_in_a_blank_image
     args = (0.1, model, params['horizon_margin'])
     found = search.search(images[0], images[1], *args)
     brighter = np.clip(images[1].astype(float) * 1.25, 0, 255).astype(np.uint8)
-    np.testing.assert_allclose(search.search(images[0], brighter, *args), found, atol=0.01)
+    # Measured: the same motion exactly with the gain changed; 0.62 mm (or mrad) standing.
+    np.testing.assert_allclose(search.search(images[0], brighter, *args), found, atol=0.001)
     still = search.search(images[1], images[1], *args)
-    assert np.abs(still).max() < 0.005, still
+    assert np.abs(still).max() < 0.0015, still
     assert search.search(np.full_like(images[0], 128), images[1], *args) is None
 
 

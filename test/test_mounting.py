@@ -61,11 +61,13 @@ def test_sprung_body_attitude_tracking_beats_a_rigid_model(sprung_car):
         'estimate_attitude': True,
         'body_pivot_below_camera': renderer.mounting.height - body.pivot_z,
         'body_pivot_behind_camera': renderer.mounting.x - body.pivot_x}), traj)
+    # Measured now: rigid 1.56 % / 9.5 deg/100 m; in place 0.110 % / 0.25 / scale 1.00022;
+    # pivoted 0.079 % / 0.30 / scale 1.00044.
     for tracked in (in_place, pivoted):
         assert tracked['t_rel_percent'] < rigid['t_rel_percent'] / 4, (tracked, rigid)
-        assert tracked['r_rel_deg_per_100m'] < 2.0, tracked
-        assert abs(tracked['scale_ratio'] - 1) < 0.005, tracked
-    assert pivoted['t_rel_percent'] < 0.25, pivoted
+        assert tracked['r_rel_deg_per_100m'] < 0.75, tracked
+        assert abs(tracked['scale_ratio'] - 1) < 0.0012, tracked
+    assert pivoted['t_rel_percent'] < 0.2, pivoted
     assert pivoted['t_rel_percent'] < in_place['t_rel_percent'], (pivoted, in_place)
 
 
@@ -88,8 +90,9 @@ def test_sprung_body_is_within_2x_of_a_rigid_mount_and_beats_opencv(sprung_car):
         'body_pivot_behind_camera': m.x - body.pivot_x}), traj)
     opencv = _metrics(_run(renderer, images, m,
                            {**tracks, 'ransac_method': 'opencv_homography'}), traj)
+    # Measured now: rigid mount 0.0323 %, sprung 0.0478 % / 0.157 deg/100 m, OpenCV 0.104 %.
     assert ours['t_rel_percent'] < 2.0 * rigid['t_rel_percent'], (ours, rigid)
-    assert ours['r_rel_deg_per_100m'] < 2.0, ours
+    assert ours['r_rel_deg_per_100m'] < 0.4, ours
     assert opencv['t_rel_percent'] > 1.8 * ours['t_rel_percent'], (opencv, ours)
 
 
@@ -105,8 +108,9 @@ def test_sprung_body_is_over_3x_better_than_a_plain_opencv_pipeline(sprung_car):
     plain = metrics(plain_opencv_path(synth_camera_model(renderer), params, images),
                     np.c_[traj.x, traj.y, traj.yaw])
     ours = _metrics(_run(renderer, images, renderer.mounting, params), traj)
-    assert plain['t_rel_percent'] > 3.0 * ours['t_rel_percent'], (plain, ours)
-    assert ours['r_rel_deg_per_100m'] < plain['r_rel_deg_per_100m'], (plain, ours)
+    # Measured now: plain 0.736 % / 1.62 deg/100 m, ours 0.0478 % / 0.157 (15x and 10x).
+    assert plain['t_rel_percent'] > 6.0 * ours['t_rel_percent'], (plain, ours)
+    assert ours['r_rel_deg_per_100m'] < plain['r_rel_deg_per_100m'] / 4, (plain, ours)
 
 
 def test_attitude_on_a_rigid_mount_costs_little():
@@ -153,18 +157,20 @@ def test_self_calibration_holds_accuracy_from_a_wrong_mounting(miscalibrated_dri
     summary = json.loads(run.stdout)
     accuracy = summary['accuracy']
     assert accuracy['path_length_m'] > 40.0
-    assert accuracy['t_rel_percent'] <= 0.5, accuracy
-    assert accuracy['r_rel_deg_per_100m'] <= 3.0, accuracy
+    assert accuracy['t_rel_percent'] <= 0.25, accuracy  # measured 0.103 %
+    assert accuracy['r_rel_deg_per_100m'] <= 0.35, accuracy  # measured 0.138
     # The online estimate at the end of the drive, against the renderer's mounting
-    # (measured: pitch 0.03, roll 0.12, yaw 0.03 deg, camera_x 7 mm off).
+    # (measured: pitch 0.030, roll 0.120, yaw 0.028 deg, camera_x 6.7 mm off). The reported
+    # std is held to the earlier, wider bounds (0.2, 0.2, 0.3 deg, 5 cm).
     learned, truth = summary['mounting'], result.mounting
     assert learned['seconds'] > 9.0, learned
-    for name, true, bound in (('camera_pitch', truth.pitch, np.radians(0.2)),
-                              ('camera_roll', truth.roll, np.radians(0.2)),
-                              ('camera_yaw', truth.yaw, np.radians(0.3)),
-                              ('camera_x', truth.x, 0.05)):
+    for name, true, bound, std_bound in (
+            ('camera_pitch', truth.pitch, np.radians(0.08), np.radians(0.2)),
+            ('camera_roll', truth.roll, np.radians(0.2), np.radians(0.2)),
+            ('camera_yaw', truth.yaw, np.radians(0.07), np.radians(0.3)),
+            ('camera_x', truth.x, 0.017, 0.05)):
         assert abs(learned[name]['value'] - true) <= bound, (name, learned[name], true)
-        assert learned[name]['std'] is not None and learned[name]['std'] < bound, learned
+        assert learned[name]['std'] is not None and learned[name]['std'] < std_bound, learned
     text = _cli('planar_vo_replay', bag, '--params', tracked)
     line = [x for x in text.stdout.splitlines() if x.startswith('self-calibrated mounting')]
     assert len(line) == 1, text.stdout
@@ -180,11 +186,12 @@ def test_calibrate_recovers_the_mounting_and_the_height(miscalibrated_drive):
     assert run.returncode == 0, run.stderr
     report = json.loads(run.stdout)
     calibrated = config.load_params_file(out / 'out.yaml')
-    assert abs(np.degrees(calibrated['camera_pitch'] - truth.pitch)) <= 0.2, report
+    # Measured: pitch 0.030, roll 0.120, yaw 0.028 deg, camera_x 6.7 mm, height 0.12 mm off.
+    assert abs(np.degrees(calibrated['camera_pitch'] - truth.pitch)) <= 0.08, report
     assert abs(np.degrees(calibrated['camera_roll'] - truth.roll)) <= 0.2, report
-    assert abs(np.degrees(calibrated['camera_yaw'] - truth.yaw)) <= 0.3, report
-    assert abs(calibrated['camera_x'] - truth.x) <= 0.05, report
-    assert abs(calibrated['camera_height'] / truth.height - 1) <= 0.005, report
+    assert abs(np.degrees(calibrated['camera_yaw'] - truth.yaw)) <= 0.07, report
+    assert abs(calibrated['camera_x'] - truth.x) <= 0.017, report
+    assert abs(calibrated['camera_height'] / truth.height - 1) <= 0.00025, report
     assert report['kept'] == [] and all(np.isfinite(v) for v in report['std'].values())
     # Everything else of IN is kept as it was.
     original = config.load_params_file(params)
@@ -243,8 +250,8 @@ def test_a_rough_road_at_20_hz_keeps_tracking_through_its_jolts():
     images = [renderer.render_frame(traj, k) for k in range(120)]
     met = _metrics(_run(renderer, images, renderer.mounting, sprung_body_params('rough'),
                         rate=20.0), traj)  # every frame estimated
-    assert met['t_rel_percent'] < 0.2, met
-    assert met['r_rel_deg_per_100m'] < 2.0, met
+    assert met['t_rel_percent'] < 0.2, met  # measured 0.0973 % now
+    assert met['r_rel_deg_per_100m'] < 0.4, met  # measured 0.143
 
 
 def test_a_sprung_car_at_20_hz_with_auto_exposure_changes():
@@ -260,6 +267,7 @@ def test_a_sprung_car_at_20_hz_with_auto_exposure_changes():
                                        sprung_body_params('car'), rate=20.0), traj)
     gains = renderer.exposure
     assert gains.max() / gains.min() > 1.2  # the gain did change
-    assert rows[0.2]['t_rel_percent'] < 0.15, rows
+    # Measured now: t_rel 0.0425 % (0.0366 % without), r_rel 0.147 deg/100 m.
+    assert rows[0.2]['t_rel_percent'] < 0.11, rows
     assert rows[0.2]['t_rel_percent'] < 1.5 * rows[0.0]['t_rel_percent'], rows
-    assert rows[0.2]['r_rel_deg_per_100m'] < 2.0, rows
+    assert rows[0.2]['r_rel_deg_per_100m'] < 0.4, rows

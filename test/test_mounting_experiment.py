@@ -31,8 +31,8 @@ def test_experiment_reports_every_variant_and_the_ratios():
     drive = out['drives']['3']
     assert set(drive) == set(VARIANTS)
     assert all(np.isfinite(v['t_rel_percent']) and v['path_length_m'] > 4 for v in drive.values())
-    assert drive[RIGID]['t_rel_percent'] < 0.2, drive
-    assert abs(drive[RIGID]['scale_ratio'] - 1) < 0.005, drive
+    assert drive[RIGID]['t_rel_percent'] < 0.05, drive  # measured 0.0201 %
+    assert abs(drive[RIGID]['scale_ratio'] - 1) < 0.0005, drive  # measured 0.99981
     summary = out['summary']
     assert np.isclose(summary['sprung_over_rigid_mount'],
                       drive[OURS]['t_rel_percent'] / drive[RIGID]['t_rel_percent'])

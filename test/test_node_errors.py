@@ -82,11 +82,19 @@ def test_warnings_are_throttled_per_cause_with_bounded_memory(in_process_node, c
     assert len(node._throttle._seen) == 64
 
 
-def test_an_image_counts_as_arrived_when_the_middleware_received_it():
-    """A frame queued 0.3 s while the node was busy arrived 0.3 s ago, not now."""
+def test_an_image_counts_as_arrived_when_the_middleware_received_it(monkeypatch):
+    """A frame queued 0.3 s while the node was busy arrived 0.3 s ago, not now. The node's
+    clocks are replaced by fixed ones: exact, whatever the machine's load."""
+    from types import SimpleNamespace
+
+    from planar_vo.ros import node as node_module
     from planar_vo.ros.node import _received_monotonic
-    before = time.monotonic()
-    queued = _received_monotonic({'received_timestamp': time.time_ns() - 300_000_000})
-    assert before - 0.31 < queued < time.monotonic() - 0.29
-    assert _received_monotonic({'received_timestamp': 0}) >= before  # not filled in: now
-    assert _received_monotonic({'received_timestamp': time.time_ns() + 10**9}) >= before
+    now, wall_ns = 1000.0, 1_700_000_000 * 10**9
+    monkeypatch.setattr(node_module, 'time', SimpleNamespace(monotonic=lambda: now,
+                                                             time_ns=lambda: wall_ns))
+    assert _received_monotonic({'received_timestamp': wall_ns - 300_000_000}) == now - 0.3
+    assert _received_monotonic({'received_timestamp': wall_ns}) == now
+    assert _received_monotonic({'received_timestamp': 0}) == now  # not filled in: now
+    assert _received_monotonic({}) == now
+    assert _received_monotonic({'received_timestamp': wall_ns + 10**9}) == now  # clock step
+    assert _received_monotonic({'received_timestamp': wall_ns - 10**12}) == now  # too old

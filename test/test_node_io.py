@@ -158,7 +158,7 @@ def test_camera_info_paired_by_stamp_in_either_order_and_at_another_rate(ros, io
     got = _relative(planar_pose(odoms[0].pose.pose), planar_pose(odoms[-1].pose.pose))
     path = sum(np.hypot(*(frames.truth(k + 1)[:2] - frames.truth(k)[:2]))
                for k in range(s, s + 19))
-    assert path > 1.0 and np.hypot(*(got[:2] - true[:2])) < 0.02 * path
+    assert path > 1.0 and np.hypot(*(got[:2] - true[:2])) < 0.004 * path  # measured 0.16 %
     # ~/path keeps only the last path_max_poses poses, the newest being the latest odom.
     wait_for(lambda: paths and stamp_ns(paths[-1].poses[-1]) == stamp_ns(odoms[-1]), 5,
              'the path up to the last frame')
@@ -222,7 +222,8 @@ def test_set_pose_then_reset(ros, io, node_io, bag):
     expected = _compose(np.array([10.0, -3.0, 1.0]),
                         _relative(frames.truth(4), frames.truth(14)))
     got = planar_pose(odoms[-1].pose.pose)
-    assert np.hypot(*(got[:2] - expected[:2])) < 0.01 and abs(got[2] - expected[2]) < 0.005
+    # Measured: 1.2 mm, 3.6e-4 rad.
+    assert np.hypot(*(got[:2] - expected[:2])) < 0.003 and abs(got[2] - expected[2]) < 0.001
     first = np.array(odoms[0].pose.covariance).reshape(6, 6)
     assert first[0, 0] >= 0.04 and first[1, 1] >= 0.09 and first[5, 5] >= 0.01
     assert ros.call(Trigger, '/io/planar_vo/reset', Trigger.Request()).success

@@ -15,23 +15,30 @@ def poses(results):
     return np.array([r.pose for r in results])
 
 
-# Measured on 150 frames (5 s): t_rel 0.03-0.07 %, r_rel 0.4-0.9 deg/100m, scale within
-# 0.02 %. The bounds leave room for other OpenCV builds: t_rel 0.3 % (the design bar);
-# r_rel 2 deg/100m because these paths are 12-32 m, where a few hundredths of a degree of
-# yaw noise is already most of a degree per 100 m. The covariances are checked against the
-# true twist and poses in test_consistency (the same runs).
+# Measured on 150 frames (5 s; deterministic, the same values in two runs), t_rel % /
+# r_rel deg/100 m / scale: `straight` 0.0317 / 0.266 / 0.99974, `gentle` 0.0327 / 0.151 /
+# 0.99973, `tight` 0.0376 / 0.363 / 0.99966, `obstacles` 0.0424 / 0.575 / 0.99974. Each bound
+# is about 2.5x its own scenario's value (the design bar is 0.3 % and 2 deg/100 m). The
+# covariances are checked against the true twist and poses in test_consistency (the same runs).
+SCENARIO_BOUNDS = {'straight': (0.08, 0.7), 'gentle': (0.08, 0.4), 'tight': (0.09, 0.9),
+                   'obstacles': (0.1, 1.4)}
+
+
 @pytest.mark.parametrize('scenario', ['straight', 'gentle', 'tight', 'obstacles'])
 def test_scenarios_within_bounds(scenario):
     results, truth, _ = drive(scenario, 150, 30.0)
     assert all(r.status in ('first', 'ok') for r in results)
     m = metrics(poses(results), truth)
-    assert m['t_rel_percent'] < 0.3, m
-    assert m['r_rel_deg_per_100m'] < 2.0, m
-    assert abs(m['scale_ratio'] - 1) < 0.005, m
+    t_rel, r_rel = SCENARIO_BOUNDS[scenario]
+    assert m['t_rel_percent'] < t_rel, m
+    assert m['r_rel_deg_per_100m'] < r_rel, m
+    assert abs(m['scale_ratio'] - 1) < 0.0008, m  # measured 0.99966-0.99974
 
 
-@pytest.mark.parametrize('model, fx', [('rational_polynomial', 460.0), ('equidistant', 300.0)])
-def test_other_lens_models_end_to_end(model, fx):
+@pytest.mark.parametrize('model, fx, t_rel, scale', [
+    ('rational_polynomial', 460.0, 0.07, 0.0006),  # measured 0.0283 %, 0.99977
+    ('equidistant', 300.0, 0.045, 0.0004)])  # measured 0.0174 %, 0.99987
+def test_other_lens_models_end_to_end(model, fx, t_rel, scale):
     """Images rendered through each CameraInfo lens model (equidistant: a fisheye whose
     corners look 80 degrees off axis) give the same accuracy as the plumb_bob scenarios."""
     from planar_vo.synth import SynthCamera
@@ -39,8 +46,8 @@ def test_other_lens_models_end_to_end(model, fx):
     results, truth = run_scenario('gentle', 90, camera=camera)
     assert all(r.status in ('first', 'ok') for r in results)
     m = metrics(poses(results), truth)
-    assert m['t_rel_percent'] < 0.3, m
-    assert abs(m['scale_ratio'] - 1) < 0.005, m
+    assert m['t_rel_percent'] < t_rel, m
+    assert abs(m['scale_ratio'] - 1) < scale, m
 
 
 def test_blank_frames_are_skipped_without_losing_motion():
@@ -57,7 +64,7 @@ def test_blank_frames_are_skipped_without_losing_motion():
     # restarted and the gap was extrapolated): no frame is lost after the gap.
     assert statuses[43:] == ['ok'] * (90 - 43)
     m = metrics(poses(results), truth)
-    assert m['final_drift_percent'] < 0.5, m
+    assert m['final_drift_percent'] < 0.1, m  # measured 0.039 %
     # The held pose is distrusted while the vehicle moves unseen.
     assert results[42].pose_covariance[0, 0] > 10 * results[39].pose_covariance[0, 0]
 
@@ -85,8 +92,8 @@ def test_frames_that_cannot_be_estimated_are_measured_later_against_the_referenc
     assert [r.status for r in results[30:33]] == ['no_estimate', 'no_estimate', 'ok']
     # Frame 32 was matched against frame 29: its motion spans three frames, none lost.
     m = metrics(poses(results), truth)
-    assert m['final_drift_percent'] < 1.0, m
-    assert m['scale_ratio'] == pytest.approx(1.0, abs=0.01)
+    assert m['final_drift_percent'] < 0.12, m  # measured 0.045 %
+    assert m['scale_ratio'] == pytest.approx(1.0, abs=0.0012)  # measured 0.99956
 
 
 def test_lost_tracking_reinitialises_and_extrapolates_the_unseen_motion():
@@ -101,9 +108,9 @@ def test_lost_tracking_reinitialises_and_extrapolates_the_unseen_motion():
     assert any(r.status == 'reinitialized' for r in results[30:40])
     assert results[-1].status == 'ok'
     # Motion while lost is extrapolated from the last twist, not dropped: the straight path
-    # at constant speed is recovered to within a few percent.
+    # at constant speed is recovered to a few hundredths of a percent.
     final = results[-1].pose
-    assert final[0] == pytest.approx(truth[-1, 0], rel=0.05)
+    assert final[0] == pytest.approx(truth[-1, 0], rel=0.001)  # measured -0.031 %
     assert results[-1].pose_covariance[0, 0] > 0.01
 
 
@@ -129,7 +136,7 @@ def test_duplicate_stamps_and_wrong_sizes_are_skipped_not_restarts():
     assert results[25].status == 'skipped' and '320x240' in results[25].message
     assert [r.status for r in results[26:]] == ['ok'] * 14
     m = metrics(poses(results), truth)
-    assert m['final_drift_percent'] < 0.5, m
+    assert m['final_drift_percent'] < 0.06, m  # measured 0.024 %
 
 
 def test_blank_frame_after_a_gap_does_not_become_the_reference():
@@ -195,8 +202,9 @@ def test_set_pose_continues_from_the_given_pose_and_covariance():
     # The pose set applies to the last estimated frame (19); motion since then is composed on.
     expected, _ = compose(given, np.zeros((3, 3)), _relative(truth[19], truth[39]),
                           np.zeros((3, 3)))
-    np.testing.assert_allclose(results[-1].pose[:2], expected[:2], atol=0.01)
-    assert abs(results[-1].pose[2] - expected[2]) < 0.005
+    # Measured: 0.80 and 0.59 mm, 1.2e-4 rad.
+    np.testing.assert_allclose(results[-1].pose[:2], expected[:2], atol=0.002)
+    assert abs(results[-1].pose[2] - expected[2]) < 0.0003
     assert results[0].pose_covariance[0, 0] >= 0.04 and results[0].pose_covariance[1, 1] >= 0.09
 
 
@@ -215,7 +223,8 @@ def test_a_camera_briefly_of_another_size_keeps_the_tracks():
     assert [r.status for r in results[21:]] == ['ok'] * 9
     expected = _relative(truth[19], truth[29])
     got = _relative(results[19].pose, results[29].pose)
-    assert np.hypot(*(got[:2] - expected[:2])) < 0.01 and abs(got[2] - expected[2]) < 0.002
+    # Measured: 0.53 mm, 6.9e-5 rad.
+    assert np.hypot(*(got[:2] - expected[:2])) < 0.0015 and abs(got[2] - expected[2]) < 0.0002
 
 
 def test_a_new_image_size_restarts_tracking_and_keeps_the_motion():
@@ -236,18 +245,20 @@ def test_a_new_image_size_restarts_tracking_and_keeps_the_motion():
     assert [r.status for r in results[21:]] == ['ok'] * 19
     # Frame 20's motion is extrapolated, the rest measured at half resolution.
     m = metrics(poses(results), truth)
-    assert m['final_drift_percent'] < 1.0, m
+    assert m['final_drift_percent'] < 0.3, m  # measured 0.121 %
 
 
-@pytest.mark.parametrize('scenario, frames, rate', [
-    ('gentle', 150, 30.0), ('default', 90, 15.0), ('obstacles', 150, 30.0)])
-def test_klt_prewarp_takes_out_the_bias_of_windows_that_deform(scenario, frames, rate):
+@pytest.mark.parametrize('scenario, frames, rate, r_rel', [
+    ('gentle', 150, 30.0, 0.4), ('default', 90, 15.0, 0.75), ('obstacles', 150, 30.0, 1.0)])
+def test_klt_prewarp_takes_out_the_bias_of_windows_that_deform(scenario, frames, rate, r_rel):
     """The default, KLT matched against the last image warped by the predicted motion and a
     0.5 px inlier threshold, against the earlier default (no warp, 1 px), on the renderer's
     truth. Measured t_rel % / r_rel (deg/100 m): `gentle` 0.048 / 0.65 -> 0.039 / 0.25,
     `default` at 15 Hz 0.072 / 0.79 -> 0.033 / 0.41, `obstacles` 0.045 / 0.88 -> 0.051 /
     0.87. Among many boxes the warp needs the tighter threshold: with 1 px, tracks on the
-    boxes that fit the ground to under 1 px biased the yaw (0.086 / 1.96)."""
+    boxes that fit the ground to under 1 px biased the yaw (0.086 / 1.96). Measured now
+    (on / off): `gentle` 0.0327 / 0.151 against 0.0748 / 0.889, `default` 0.0267 / 0.293
+    against 0.107 / 0.715, `obstacles` 0.0424 / 0.575 against 0.0664 / 1.32."""
     got = {}
     for prewarp, threshold in ((False, 1.0), (True, 0.5)):
         results, truth = run_scenario(scenario, frames, rate=rate, overrides={
@@ -255,8 +266,8 @@ def test_klt_prewarp_takes_out_the_bias_of_windows_that_deform(scenario, frames,
         assert all(r.status in ('first', 'ok') for r in results)
         got[prewarp] = metrics(poses(results), truth)
     off, on = got[False], got[True]
-    assert on['t_rel_percent'] < 0.06, on
-    assert on['r_rel_deg_per_100m'] < 1.0, on
+    assert on['t_rel_percent'] < 0.06, on  # 1.4-2.2x the values measured
+    assert on['r_rel_deg_per_100m'] < r_rel, on  # 1.7-2.7x
     if scenario != 'obstacles':  # there, as good, not better
         assert on['t_rel_percent'] < 0.85 * off['t_rel_percent'], (on, off)
         assert on['r_rel_deg_per_100m'] < 0.6 * off['r_rel_deg_per_100m'], (on, off)

@@ -76,7 +76,9 @@ def test_unbiased_and_consistent_when_noise_reaches_the_inlier_threshold(car_cam
         sigmas.append(np.sqrt(np.diag(result.covariance)))
         nees.append(error @ np.linalg.solve(result.covariance, error))
     bias = np.mean(errors, axis=0) / np.mean(sigmas, axis=0)
-    assert np.all(np.abs(bias) < 0.45), bias
+    # Measured: bias at most 0.032 sigma, NEES 4.06. The mean of 100 trials has a standard
+    # error of 0.1 sigma itself: 3 of those is the bound (2-3x of 0.03 would test the seeds).
+    assert np.all(np.abs(bias) < 0.3), bias
     assert np.mean(nees) < 4.6, np.mean(nees)
 
 

@@ -126,8 +126,8 @@ def test_supersampled_frames_make_the_odometry_more_accurate():
     from test.conftest import run_scenario
     results, truth = run_scenario('straight', 150, supersample=2)
     m = metrics(np.array([r.pose for r in results]), truth)
-    assert m['t_rel_percent'] < 0.027, m['t_rel_percent']
-    assert abs(m['scale_ratio'] - 1.0) < 5e-4, m['scale_ratio']
+    assert m['t_rel_percent'] < 0.027, m['t_rel_percent']  # measured 0.0213 %
+    assert abs(m['scale_ratio'] - 1.0) < 5e-4, m['scale_ratio']  # measured 0.99982
 
 
 def test_sky_has_no_texture_and_ground_has():
@@ -693,4 +693,5 @@ def test_pipeline_agrees_with_the_renderer_on_a_rolled_and_yawed_camera():
                                   overrides={'estimate_attitude': False})
     assert all(r.status in ('first', 'ok') for r in results)
     m = metrics(np.array([r.pose for r in results]), truth)
-    assert m['t_rel_percent'] < 0.15 and m['r_rel_deg_per_100m'] < 2.0, m
+    # Measured: t_rel 0.0353 %, r_rel 0.182 deg/100 m.
+    assert m['t_rel_percent'] < 0.09 and m['r_rel_deg_per_100m'] < 0.5, m
