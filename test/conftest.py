@@ -111,10 +111,7 @@ def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, came
     if configured is None or isinstance(configured, synth.MountingError):
         configured = (configured or synth.MountingError()).apply(renderer.mounting)
     mount = configured
-    params = config.validate({'camera_x': mount.x, 'camera_y': mount.y,
-                              'camera_height': mount.height, 'camera_roll': mount.roll,
-                              'camera_pitch': mount.pitch, 'camera_yaw': mount.yaw,
-                              **(overrides or {})})
+    params = config.validate({**config.mounting_params(mount), **(overrides or {})})
     vo = VisualOdometry.from_params(synth_camera_model(renderer), params)
     results = []
     for k in range(frames):

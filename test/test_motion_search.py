@@ -23,9 +23,7 @@ def _true_motions(traj):
 
 def _params(renderer, **overrides):
     m = renderer.mounting
-    return config.validate({'camera_x': m.x, 'camera_y': m.y, 'camera_height': m.height,
-                            'camera_roll': m.roll, 'camera_pitch': m.pitch,
-                            'camera_yaw': m.yaw, **overrides})
+    return config.validate({**config.mounting_params(m), **overrides})
 
 
 @pytest.fixture(scope='module')

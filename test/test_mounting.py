@@ -20,10 +20,7 @@ from test.conftest import sprung_body_params, synth_camera_model
 
 
 def _params(truth_mounting, overrides):
-    m = truth_mounting
-    return config.validate({'camera_x': m.x, 'camera_y': m.y, 'camera_height': m.height,
-                            'camera_roll': m.roll, 'camera_pitch': m.pitch,
-                            'camera_yaw': m.yaw, **overrides})
+    return config.validate({**config.mounting_params(truth_mounting), **overrides})
 
 
 def _run(renderer, images, truth_mounting, overrides, rate=30.0):
@@ -225,9 +222,7 @@ def test_a_frame_rejected_for_too_few_inliers_teaches_the_attitude_nothing(sprun
     attitude, its learned rate and spread and the self-calibration stay as they started."""
     renderer, _, images = sprung_car
     m = renderer.mounting
-    params = config.validate({'camera_x': m.x, 'camera_y': m.y, 'camera_height': m.height,
-                              'camera_roll': m.roll, 'camera_pitch': m.pitch,
-                              'camera_yaw': m.yaw, 'estimate_attitude': True,
+    params = config.validate({**config.mounting_params(m), 'estimate_attitude': True,
                               'min_inliers': 1000})
     vo = VisualOdometry.from_params(synth_camera_model(renderer), params)
     att = vo.attitude_filter

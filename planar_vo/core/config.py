@@ -20,7 +20,7 @@ from planar_vo.core.geometry.camera import Mounting
 
 __all__ = ['Param', 'SCHEMA', 'Params', 'make_params', 'ConfigError', 'defaults', 'validate',
            'load_params_file', 'read_params_yaml', 'params_section', 'MOUNTING_PARAMS',
-           'schema_markdown', 'mounting_from_params']
+           'schema_markdown', 'mounting_from_params', 'mounting_params']
 
 NODE_NAME = 'planar_vo'
 
@@ -321,6 +321,15 @@ def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, 
     if not isinstance(section, dict):
         raise ConfigError(f'params file {path} has no "{node_name}: ros__parameters:" section')
     return validate(section)
+
+
+def mounting_params(mounting: Any) -> dict[str, float]:
+    """The ``camera_*`` parameters of ``mounting`` (anything with x, y, height, roll, pitch,
+    yaw): the inverse of :func:`mounting_from_params`.
+    """
+    return {'camera_x': mounting.x, 'camera_y': mounting.y, 'camera_height': mounting.height,
+            'camera_roll': mounting.roll, 'camera_pitch': mounting.pitch,
+            'camera_yaw': mounting.yaw}
 
 
 def mounting_from_params(params: Any) -> Mounting:

@@ -98,8 +98,7 @@ def run_drive(scenario: str, frames: int, seed: int, rate: float = 30.0,
             images.append(renderer.render_frame(traj, k))
             tick()
         m = renderer.mounting
-        mounting = {'camera_x': m.x, 'camera_y': m.y, 'camera_height': m.height,
-                    'camera_roll': m.roll, 'camera_pitch': m.pitch, 'camera_yaw': m.yaw,
+        mounting = {**config.mounting_params(m),
                     'body_pivot_below_camera': m.height - body.pivot_z,
                     'body_pivot_behind_camera': m.x - body.pivot_x, 'max_features': TRACKS}
         for name, (rendered, overrides) in VARIANTS.items():
