@@ -324,8 +324,9 @@ def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, 
 
 
 def mounting_params(mounting: Any) -> dict[str, float]:
-    """The ``camera_*`` parameters of ``mounting`` (anything with x, y, height, roll, pitch,
-    yaw): the inverse of :func:`mounting_from_params`.
+    """The ``camera_*`` parameters of ``mounting``: the inverse of mounting_from_params.
+
+    ``mounting``: anything with x, y, height, roll, pitch and yaw (a Mounting, the renderer's).
     """
     return {'camera_x': mounting.x, 'camera_y': mounting.y, 'camera_height': mounting.height,
             'camera_roll': mounting.roll, 'camera_pitch': mounting.pitch,
