@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from planar_vo.core import config
+from planar_vo.core.frontend.tracker import Tracker
 from planar_vo.core.geometry.camera import CameraModel, Mounting
 from planar_vo.core.geometry.se2 import compose
 from planar_vo.core.metrics import metrics
@@ -297,6 +298,11 @@ def test_constructor_defaults_are_the_parameter_schemas():
     for name in ('max_features', 'quality_level', 'min_distance', 'window', 'levels',
                  'fb_threshold'):
         assert getattr(direct.tracker, name) == getattr(schema.tracker, name), name
+    tracker, d = Tracker(), config.defaults()  # the tracker's own defaults are the schema's
+    assert (tracker.max_features, tracker.quality_level, tracker.min_distance, tracker.window,
+            tracker.levels, tracker.fb_threshold) == (
+        d['max_features'], d['quality_level'], d['min_distance'], d['klt_window'],
+        d['klt_levels'], d['fb_threshold'])
 
 
 def test_pose_covariance_holds_correlated_step_errors_and_a_persistent_scale_error():

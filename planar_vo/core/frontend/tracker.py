@@ -37,7 +37,7 @@ class Tracker:
         max_features: int = 400,
         quality_level: float = 0.005,
         min_distance: float = 8.0,
-        window: int = 15,
+        window: int = 25,
         levels: int = 3,
         predicted_levels: int = 1,
         fb_threshold: float = 0.5,

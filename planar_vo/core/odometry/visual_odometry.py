@@ -46,7 +46,6 @@ __all__ = ['VisualOdometry']
 
 _MAX_FAILED_FRAMES = 3  # frames in a row without an estimate before tracking counts as lost
 _MASK_REDRAW_YAW = np.radians(0.5)
-_WARPED_KLT_WINDOW = 25
 _OUTLIER_DROP = 3.0  # tracks this many inlier thresholds off the motion are dropped
 
 
@@ -76,10 +75,9 @@ class VisualOdometry:
         klt_prewarp: bool = True,
         klt_first_search: bool = True,
     ) -> None:
-        # The defaults are the parameter schema's (a test holds them to it); the tracker's
-        # window is the one for the warp (Tracker's own default suits KLT without it).
+        # The defaults are the parameter schema's (a test holds them to it).
         self.front = GroundFrontEnd(
-            tracker if tracker is not None else Tracker(window=_WARPED_KLT_WINDOW),
+            tracker if tracker is not None else Tracker(),
             horizon_margin=horizon_margin, klt_prewarp=klt_prewarp,
             klt_first_search=klt_first_search)
         self.ransac_method = ransac_method
