@@ -39,12 +39,15 @@ from planar_vo.synth.bagfile import (
     INFO_TOPIC,
     ODOM_TOPIC,
     OPTICAL_FRAME,
+    POSE3D_TOPIC,
+    WORLD_FRAME,
     SynthResult,
     camera_info_msg,
     compressed_msg,
     generate_bag,
     image_msg,
     odometry_msg,
+    pose3d_msg,
 )
 from planar_vo.synth.cli import build_parser, main
 from planar_vo.synth.lens import DISTORTION_DEFAULTS, SynthCamera, undistort_pixels
@@ -58,30 +61,59 @@ from planar_vo.synth.mount import (
     rotation_rpy,
     rpy_of,
 )
+from planar_vo.synth.raycast import intersect
 from planar_vo.synth.render import Renderer, exposure_gains
-from planar_vo.synth.scenarios import SCENARIOS, Scenario, render_scenario
-from planar_vo.synth.scene import Box, Texture, make_ground_texture, make_obstacles
+from planar_vo.synth.ride import CHASSIS, Chassis, ride
+from planar_vo.synth.scenarios import SCENARIOS, VEHICLES, Scenario, render_scenario
+from planar_vo.synth.scene import (
+    Box,
+    ObstacleProfile,
+    Texture,
+    make_ground_texture,
+    make_obstacles,
+)
+from planar_vo.synth.terrain import (
+    FLAT,
+    TERRAIN_KINDS,
+    Bumps,
+    Camber,
+    Composite,
+    Flat,
+    Grades,
+    Hills,
+    Plane,
+    Terrain,
+    TerrainError,
+    make_terrain,
+)
 from planar_vo.synth.vehicle import (
     RIGID,
     WHEELBASE,
     BodyMotion,
     CameraPoses,
+    DriveProfile,
+    Pose3D,
     Suspension,
     Trajectory,
     body_motion,
     camera_poses,
+    drive_functions,
     make_trajectory,
     mount_camera,
     road_vibration,
 )
 
 __all__ = [
-    'BODY_FROM_OPTICAL', 'COMPRESSED_TOPIC', 'DEFAULT_MOUNTING', 'DISTORTION_DEFAULTS',
-    'EPOCH_NS', 'IMAGE_TOPIC', 'INFO_TOPIC', 'ODOM_TOPIC', 'OPTICAL_FRAME', 'RIGID', 'SCENARIOS',
-    'WHEELBASE', 'BodyMotion', 'Box', 'CameraMount', 'CameraPoses', 'MountingError', 'Renderer',
-    'Scenario', 'Suspension', 'SynthCamera', 'SynthResult', 'Texture', 'Trajectory',
-    'axis_rotation', 'body_motion', 'build_parser', 'camera_info_msg', 'camera_poses',
-    'compressed_msg', 'exposure_gains', 'generate_bag', 'image_msg', 'main', 'make_ground_texture',
-    'make_obstacles', 'make_trajectory', 'mount_camera', 'odometry_msg', 'params_yaml',
-    'render_scenario', 'road_vibration', 'rotation_rpy', 'rpy_of', 'undistort_pixels',
+    'BODY_FROM_OPTICAL', 'CHASSIS', 'COMPRESSED_TOPIC', 'DEFAULT_MOUNTING', 'DISTORTION_DEFAULTS',
+    'EPOCH_NS', 'FLAT', 'IMAGE_TOPIC', 'INFO_TOPIC', 'ODOM_TOPIC', 'OPTICAL_FRAME',
+    'POSE3D_TOPIC', 'RIGID', 'SCENARIOS', 'TERRAIN_KINDS', 'VEHICLES', 'WHEELBASE', 'WORLD_FRAME',
+    'BodyMotion', 'Box', 'Bumps', 'Camber', 'CameraMount', 'CameraPoses', 'Chassis', 'Composite',
+    'DriveProfile', 'Flat', 'Grades', 'Hills', 'MountingError', 'ObstacleProfile', 'Plane',
+    'Pose3D', 'Renderer', 'Scenario', 'Suspension', 'SynthCamera', 'SynthResult', 'Terrain',
+    'TerrainError', 'Texture', 'Trajectory', 'axis_rotation', 'body_motion', 'build_parser',
+    'camera_info_msg', 'camera_poses', 'compressed_msg', 'drive_functions', 'exposure_gains',
+    'generate_bag', 'image_msg', 'intersect', 'main', 'make_ground_texture', 'make_obstacles',
+    'make_terrain', 'make_trajectory', 'mount_camera', 'odometry_msg', 'params_yaml',
+    'pose3d_msg', 'render_scenario', 'ride', 'road_vibration', 'rotation_rpy', 'rpy_of',
+    'undistort_pixels',
 ]
