@@ -63,7 +63,7 @@ from planar_vo.synth.mount import (
 )
 from planar_vo.synth.raycast import intersect
 from planar_vo.synth.render import Renderer, exposure_gains
-from planar_vo.synth.ride import CHASSIS, Chassis, ride
+from planar_vo.synth.ride import CHASSIS, Chassis, ride_over, settle
 from planar_vo.synth.scenarios import SCENARIOS, VEHICLES, Scenario, render_scenario
 from planar_vo.synth.scene import (
     Box,
@@ -114,6 +114,7 @@ __all__ = [
     'camera_info_msg', 'camera_poses', 'compressed_msg', 'drive_functions', 'exposure_gains',
     'generate_bag', 'image_msg', 'intersect', 'main', 'make_ground_texture', 'make_obstacles',
     'make_terrain', 'make_trajectory', 'mount_camera', 'odometry_msg', 'params_yaml',
-    'pose3d_msg', 'render_scenario', 'ride', 'road_vibration', 'rotation_rpy', 'rpy_of',
+    'pose3d_msg', 'render_scenario', 'ride_over', 'road_vibration',
+    'settle', 'rotation_rpy', 'rpy_of',
     'undistort_pixels',
 ]

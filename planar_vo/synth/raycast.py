@@ -24,7 +24,7 @@ from planar_vo.synth.terrain import Terrain, split
 
 def intersect(terrain: Terrain, origin, dirs: np.ndarray, max_range: float, *,
               margin: float = 0.05, rel: float = 0.01, step_min: float = 0.04,
-              step_max: float = 0.3, tol: float = 1e-5, iterations: int = 40):
+              step_max: float = 0.3, tol: float = 1e-7, iterations: int = 40):
     """Ray length ``t`` (N,) to the first hit and ``hit`` (N,) bool (False: none in range).
 
     ``origin`` (3,) is the common ray origin, ``dirs`` (3, N) unit directions (world frame).
@@ -109,9 +109,9 @@ def intersect(terrain: Terrain, origin, dirs: np.ndarray, max_range: float, *,
     side = np.zeros(idx.size, np.int8)
     for _ in range(iterations):
         m = np.where(np.isfinite(fa), (a * fb - b * fa) / (fb - fa), b)
-        m = np.where((m > a) & (m < b), m, 0.5 * (a + b))
+        m = np.where((m > a) & (m <= b), m, 0.5 * (a + b))
         fm = f_of(idx, m)
-        conv = (np.abs(fm) < tol) | (b - a < 1e-7)
+        conv = (np.abs(fm) < tol) | (b - a < 1e-9)
         t_out[idx[conv]] = m[conv]
         if conv.all():
             idx = idx[:0]

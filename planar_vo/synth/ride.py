@@ -174,7 +174,7 @@ def _vee(dr: np.ndarray) -> np.ndarray:
     return axis * scale[:, None]
 
 
-def ride(drive, terrain: Terrain, frames: int, rate: float, seed: int,
+def ride_over(drive, terrain: Terrain, frames: int, rate: float, seed: int,
          chassis: Chassis | str = 'car', *, passes: int = 4) -> Trajectory:
     """The trajectory of a drive over ``terrain``: 3D pose and planar truth at the frames.
 
@@ -188,14 +188,21 @@ def ride(drive, terrain: Terrain, frames: int, rate: float, seed: int,
     dt = 1.0 / rate
     sub = max(1, math.ceil(dt / FINE_STEP - 1e-9))
     h = dt / sub
-    n = (frames - 1) * sub + 1
-    t = np.arange(n) * h
+    # the fine grid, one step beyond the first and the last frame (central differences there);
+    # frame k is grid point 1 + k * sub, the start (0, 0, heading 0) is grid point 1
+    n = (frames - 1) * sub + 3
+    t = (np.arange(n) - 1) * h
     v = speed(t)
     omega = v * np.tan(steer(t)) / WHEELBASE
+
+    def integrate(rate):
+        out = _cumtrapz(rate, h)
+        return out - out[1]
+
     # First guess: the flat bicycle path (trapezoid rule), then fixed-point passes.
-    heading = _cumtrapz(omega, h)
-    x = _cumtrapz(v * np.cos(heading), h)
-    y = _cumtrapz(v * np.sin(heading), h)
+    heading = integrate(omega)
+    x = integrate(v * np.cos(heading))
+    y = integrate(v * np.sin(heading))
     axle = chassis._groups()[4]
     pts = chassis.points[axle]
     for _ in range(passes):
@@ -210,23 +217,25 @@ def ride(drive, terrain: Terrain, frames: int, rate: float, seed: int,
         pitch_rate = np.gradient(pitch, h)
         # body yaw rate = heading_rate cos(pitch) cos(roll) - pitch_rate sin(roll)
         heading_rate = (omega + pitch_rate * np.sin(roll)) / (np.cos(pitch) * np.cos(roll))
-        heading = _cumtrapz(heading_rate, h)
-        x = _cumtrapz(ground_speed * np.cos(heading), h)
-        y = _cumtrapz(ground_speed * np.sin(heading), h)
+        heading = integrate(heading_rate)
+        x = integrate(ground_speed * np.cos(heading))
+        y = integrate(ground_speed * np.sin(heading))
     z, pitch, roll, _ = settle(terrain, chassis, x, y, heading)
     pos = np.stack([x, y, z], 1)
     rot = rotations(heading, pitch, roll)
     # planar truth: SE(2) composition of the body-frame planar parts of each fine step
-    idx = np.arange(n - 1)
+    idx = np.arange(1, n - 2)
     dp, dr = _relative(rot, pos, idx, idx + 1)
     dyaw = np.arctan2(dr[:, 1, 0], dr[:, 0, 0])
     yaw = np.concatenate([[0.0], np.cumsum(dyaw)])
     cy, sy = np.cos(yaw[:-1]), np.sin(yaw[:-1])
     px = np.concatenate([[0.0], np.cumsum(cy * dp[:, 0] - sy * dp[:, 1])])
     py = np.concatenate([[0.0], np.cumsum(sy * dp[:, 0] + cy * dp[:, 1])])
-    # body twist at the frames: central differences on the fine grid (one-sided at the ends)
-    k = np.arange(frames) * sub
-    a, b = np.maximum(k - 1, 0), np.minimum(k + 1, n - 1)
+    j = np.arange(frames) * sub  # frames in the planar arrays
+    px, py, yaw = px[j], py[j], yaw[j]
+    # body twist at the frames: central differences on the fine grid
+    k = j + 1
+    a, b = k - 1, k + 1
     span = (b - a) * h
     dpk, drk = _relative(rot, pos, a, b)
     # the velocity at k in k's frame: rotate the a-frame difference into k's frame
@@ -235,8 +244,8 @@ def ride(drive, terrain: Terrain, frames: int, rate: float, seed: int,
     eps = 1e-5
     accel = (speed(t[k] + eps) - speed(t[k] - eps)) / (2 * eps)
     pose3d = Pose3D(pos[k], rot[k], linear, angular)
-    return Trajectory(t[k], px[k], py[k], yaw[k], linear[:, 0], angular[:, 2], steer(t[k]),
-                      WHEELBASE, accel, pose3d=pose3d)
+    return Trajectory(np.arange(frames) * dt, px, py, yaw, linear[:, 0], angular[:, 2],
+                      steer(t[k]), WHEELBASE, accel, pose3d=pose3d)
 
 
 def with_world_path(traj: Trajectory) -> Trajectory:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from planar_vo.synth.lens import SynthCamera
 from planar_vo.synth.mount import DEFAULT_MOUNTING, CameraMount
 from planar_vo.synth.render import Renderer, exposure_gains
-from planar_vo.synth.ride import CHASSIS, ride, with_world_path
+from planar_vo.synth.ride import CHASSIS, ride_over, with_world_path
 from planar_vo.synth.scene import ObstacleProfile, make_ground_texture, make_obstacles
 from planar_vo.synth.terrain import TERRAIN_KINDS, Terrain, TerrainError, make_terrain
 from planar_vo.synth.vehicle import (
@@ -133,7 +133,7 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
     ground = make_terrain(sc.terrain if terrain is None else terrain, seed, traj.x, traj.y) \
         if not isinstance(terrain, Terrain) else terrain
     if not ground.flat:
-        traj = ride(sc.drive, ground, frames, rate, seed, CHASSIS[vehicle])
+        traj = ride_over(sc.drive, ground, frames, rate, seed, CHASSIS[vehicle])
     traj = mount_camera(traj, mounting, suspension, seed)
     boxes = make_obstacles(with_world_path(traj), sc.obstacles, seed, mounting) \
         if obstacles else []
