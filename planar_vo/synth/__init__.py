@@ -19,6 +19,15 @@ Geometry (all exact, the odometry is tested against it):
   frame is ``Trajectory.camera``.
 - Images are rendered *with* the plumb_bob distortion that CameraInfo describes: every pixel
   (u, v) (OpenCV convention, pixel centres at integer coordinates) is undistorted to a ray.
+- Terrain (``terrain``, ``ride``, ``raycast``): off flat ground the world has a height field
+  ``z = h(x, y)`` laid out in world x, y (the drive starts at the origin heading +x; a road
+  crown follows the planar path). The vehicle (car or differential-drive robot) stands on it
+  through its wheel contacts: base_link's 3D pose in the world (``Trajectory.pose3d``) has the
+  pitch of its front vs rear contacts and the roll of its left vs right wheels; the sprung
+  body rides on that pose. The planar truth is then the SE(2) composition of the body-frame
+  planar parts of the 3D motion on a <= 2 ms grid: distance along the surface. Every pixel's
+  ray is intersected with the height field (the first hit). On flat ground none of it runs:
+  bags are byte for byte those of before.
 
 Rendering: a periodic pink-noise asphalt texture (20.48 m tile, 5 mm texels) sampled through
 a mip-map with trilinear filtering, level chosen from each pixel's ground footprint; haze and a
@@ -27,9 +36,12 @@ intersection); vignetting, slow global illumination change and Gaussian noise. D
 for a seed.
 
 Modules: ``mount`` (the camera's mounting, own rotations), ``lens`` (intrinsics, distortion),
-``scene`` (texture, boxes), ``vehicle`` (bicycle model, sprung body, true camera poses),
-``render`` (images, auto-exposure), ``scenarios`` (named scenarios, building one),
-``bagfile`` (messages, writing the bag), ``cli`` (``planar_vo_synth``).
+``scene`` (texture, boxes, the obstacle profile), ``vehicle`` (drive profile, bicycle model,
+sprung body, true camera poses), ``terrain`` (height fields), ``ride`` (the vehicle on a
+terrain, 3D and planar truth), ``raycast`` (rays against a height field), ``render`` (images,
+auto-exposure), ``scenarios`` (named scenarios composing the profiles, building one; nothing
+imports it but bagfile and cli), ``bagfile`` (messages, writing the bag), ``cli``
+(``planar_vo_synth``).
 """
 
 from planar_vo.synth.bagfile import (
