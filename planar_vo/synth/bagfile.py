@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -13,7 +14,9 @@ from tqdm import tqdm
 
 from planar_vo.synth.lens import SynthCamera
 from planar_vo.synth.mount import CameraMount, MountingError, params_yaml
+from planar_vo.synth.ride import rotation_quaternion
 from planar_vo.synth.scenarios import SCENARIOS, render_scenario
+from planar_vo.synth.terrain import Terrain
 from planar_vo.synth.vehicle import RIGID, Suspension, Trajectory
 
 EPOCH_NS = 1_700_000_000 * 1_000_000_000
@@ -21,6 +24,8 @@ IMAGE_TOPIC = '/camera/image_raw'
 COMPRESSED_TOPIC = '/camera/image_raw/compressed'
 INFO_TOPIC = '/camera/camera_info'
 ODOM_TOPIC = '/ground_truth/odom'
+POSE3D_TOPIC = '/ground_truth/pose3d'
+WORLD_FRAME = 'world'
 OPTICAL_FRAME = 'camera_optical_frame'
 
 
@@ -82,6 +87,24 @@ def odometry_msg(ts, traj: Trajectory, k: int, ns: int):
         twist=t['geometry_msgs/msg/TwistWithCovariance'](twist=twist, covariance=np.zeros(36)))
 
 
+def pose3d_msg(ts, traj: Trajectory, k: int, ns: int):
+    """nav_msgs/Odometry of base_link's full 3D pose in ``world`` and its body twist."""
+    t = ts.types
+    p3 = traj.pose3d
+    qx, qy, qz, qw = rotation_quaternion(p3.rotation[k])
+    pose = t['geometry_msgs/msg/Pose'](
+        position=t['geometry_msgs/msg/Point'](**dict(zip('xyz', map(float, p3.position[k])))),
+        orientation=t['geometry_msgs/msg/Quaternion'](x=qx, y=qy, z=qz, w=qw))
+    vec = t['geometry_msgs/msg/Vector3']
+    twist = t['geometry_msgs/msg/Twist'](
+        linear=vec(**dict(zip('xyz', map(float, p3.linear[k])))),
+        angular=vec(**dict(zip('xyz', map(float, p3.angular[k])))))
+    return t['nav_msgs/msg/Odometry'](
+        header=_header(ts, ns, WORLD_FRAME), child_frame_id='base_link',
+        pose=t['geometry_msgs/msg/PoseWithCovariance'](pose=pose, covariance=np.zeros(36)),
+        twist=t['geometry_msgs/msg/TwistWithCovariance'](twist=twist, covariance=np.zeros(36)))
+
+
 @dataclass
 class SynthResult:
     """What :func:`generate_bag` wrote."""
@@ -99,6 +122,8 @@ class SynthResult:
     exposure: float = 0.0
     obstacles: int = 0
     seconds: float = 0.0
+    terrain: Terrain | None = None
+    vehicle: str = 'car'
 
 
 def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: int = 0, *,
@@ -108,13 +133,16 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                  obstacles: bool = True, storage_compression: bool = True,
                  params_out=None, configured_error: MountingError | None = None,
                  exposure: float = 0.0, supersample: int = 1,
+                 terrain: str | Terrain | None = None, vehicle: str = 'car',
                  progress: bool = False) -> SynthResult:
     """Render a scenario and write the rosbag2 bag (MCAP, zstd chunks) at ``out_path``.
 
-    ``mounting``, ``suspension``, ``exposure`` and ``supersample`` as in
-    :func:`render_scenario`. The images are rendered with ``mounting``; ``params_out`` gets
-    it plus ``configured_error`` (the mounting a user would have configured, to test
-    calibration).
+    ``mounting``, ``suspension``, ``exposure``, ``supersample``, ``terrain`` and ``vehicle``
+    as in :func:`render_scenario`. The images are rendered with ``mounting``; ``params_out``
+    gets it plus ``configured_error`` (the mounting a user would have configured, to test
+    calibration). On terrain (not flat) the bag also has ``/ground_truth/pose3d`` and its
+    metadata.yaml records the terrain and the vehicle (``custom_data``, key
+    ``planar_vo_synth``, a JSON object); so does a comment in ``params_out``.
     """
     from planar_vo.io.bag import BagWriter, typestore
 
@@ -124,7 +152,13 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                                      mounting=mounting, suspension=suspension,
                                      noise_sigma=noise_sigma, max_range=max_range,
                                      obstacles=obstacles, exposure=exposure,
-                                     supersample=supersample)
+                                     supersample=supersample, terrain=terrain,
+                                     vehicle=vehicle)
+    ground = renderer.terrain
+    record = None if ground.flat else json.dumps(
+        {'scenario': scenario, 'vehicle': vehicle, 'terrain': ground.describe(),
+         'seed': seed, 'truth': {ODOM_TOPIC: 'planar, distance along the surface',
+                                 POSE3D_TOPIC: f'3D base_link pose in {WORLD_FRAME}'}})
     mounting = renderer.mounting
     configured = (configured_error or MountingError()).apply(mounting)
     suspension = SCENARIOS[scenario].suspension if suspension is None else suspension
@@ -136,6 +170,10 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
         bag.add_topic(img_topic, img_type)
         bag.add_topic(INFO_TOPIC, 'sensor_msgs/msg/CameraInfo')
         bag.add_topic(ODOM_TOPIC, 'nav_msgs/msg/Odometry')
+        if record is not None:
+            bag.add_topic(POSE3D_TOPIC, 'nav_msgs/msg/Odometry')
+            # io.bag.BagWriter has no custom_data option yet: its rosbags Writer has
+            bag._writer.set_custom_data('planar_vo_synth', record)
         for k in range(frames):
             ns = EPOCH_NS + int(round(k * 1e9 / rate))
             img = renderer.render_frame(traj, k)
@@ -146,6 +184,8 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                       camera_info_msg(ts, camera, ns))
             bag.write(img_topic, img_type, ns, msg)
             bag.write(ODOM_TOPIC, 'nav_msgs/msg/Odometry', ns, odometry_msg(ts, traj, k, ns))
+            if record is not None:
+                bag.write(POSE3D_TOPIC, 'nav_msgs/msg/Odometry', ns, pose3d_msg(ts, traj, k, ns))
             bar.update()
     if params_out is not None:
         text = params_yaml(configured)
@@ -153,7 +193,9 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
             text += (f'# rendered with camera_x {mounting.x!r}, camera_y {mounting.y!r}, '
                      f'camera_height {mounting.height!r},\n# camera_roll {mounting.roll!r}, '
                      f'camera_pitch {mounting.pitch!r}, camera_yaw {mounting.yaw!r}\n')
+        if record is not None:
+            text += f'# planar_vo_synth: {record}\n'
         Path(params_out).write_text(text)
     return SynthResult(Path(out_path), scenario, frames, rate, seed, camera, mounting, traj,
                        suspension, configured, exposure, len(renderer.boxes),
-                       time.monotonic() - t0)
+                       time.monotonic() - t0, ground, vehicle)

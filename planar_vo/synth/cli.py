@@ -12,7 +12,8 @@ from planar_vo.io.errors import BagError
 from planar_vo.synth.bagfile import generate_bag
 from planar_vo.synth.lens import DISTORTION_DEFAULTS, SynthCamera
 from planar_vo.synth.mount import MountingError
-from planar_vo.synth.scenarios import SCENARIOS
+from planar_vo.synth.scenarios import SCENARIOS, VEHICLES
+from planar_vo.synth.terrain import TERRAIN_KINDS
 from planar_vo.synth.vehicle import Suspension
 from planar_vo.tools.cli import (
     Parser,
@@ -41,7 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG,
         description='Render a monocular camera on a car driving over textured ground and write '
                     'a rosbag2 bag (MCAP, Jazzy) with /camera/image_raw, /camera/camera_info '
-                    'and /ground_truth/odom (base_link on the rear axle, in odom).')
+                    'and /ground_truth/odom (base_link on the rear axle, in odom; on terrain '
+                    'the planar truth, distance along the surface, plus /ground_truth/pose3d: '
+                    'the full 3D base_link pose in world).')
     p.add_argument('out_bag', metavar='OUT_BAG', help='output bag directory (must not exist)')
     p.add_argument('--scenario', default='default', metavar='NAME',
                    help=f'driving scenario (default: default). {scen}')
@@ -89,6 +92,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--bounce', type=non_negative_float, metavar='M',
                    help="sprung body: largest height change, m (default: the scenario's, 0 "
                         'except car 0.015, rough 0.03)')
+    kinds = '; '.join(f'{k}: {v}' for k, v in TERRAIN_KINDS.items()).replace('%', '%%')
+    p.add_argument('--terrain', choices=list(TERRAIN_KINDS), metavar='KIND',
+                   help="ground height field (default: the scenario's, flat except road: "
+                        f'all). {kinds}. Grades, bumps and hills are laid out in world x, y '
+                        '(the drive starts at the origin heading +x); the crown follows the '
+                        'path. Off flat ground the bag also has /ground_truth/pose3d')
+    vehicles = '; '.join(f'{k}: {v}' for k, v in VEHICLES.items())
+    p.add_argument('--vehicle', choices=list(VEHICLES), default='car', metavar='KIND',
+                   help=f'what rides the terrain on its wheels (default car). {vehicles}. '
+                        'Both drive the same speed and yaw-rate profile')
     p.add_argument('--configured-error', type=_mounting_error, metavar='NAME=VALUE,...',
                    help='write to --params-out a mounting that is off the rendered one by '
                         'this much, to test calibration: roll, pitch, yaw in degrees, x, y, '
@@ -164,6 +177,7 @@ def main(argv=None) -> int:
                                 cx=args.cx, cy=args.cy,
                                 dist=tuple(args.dist) if args.dist else None,
                                 distortion_model=args.distortion_model)
+
     def generate() -> int:
         res = generate_bag(out, args.scenario, args.frames, args.seed, rate=args.rate,
                            camera=camera, mounting=mounting, suspension=suspension,
@@ -173,10 +187,13 @@ def main(argv=None) -> int:
                            storage_compression=not args.no_storage_compression,
                            params_out=args.params_out, configured_error=args.configured_error,
                            exposure=args.exposure, supersample=args.supersample,
+                           terrain=args.terrain, vehicle=args.vehicle,
                            progress=not args.quiet)
         if not args.quiet:
+            ground = '' if res.terrain.flat else \
+                f', terrain {res.terrain.describe()["kind"]}, {res.vehicle}'
             print(f'{PROG}: wrote {res.path} ({res.frames} frames, scenario {res.scenario}, '
-                  f'path {res.trajectory.length:.1f} m, {res.obstacles} boxes, '
+                  f'path {res.trajectory.length:.1f} m, {res.obstacles} boxes{ground}, '
                   f'{res.seconds:.1f} s)', file=sys.stderr)
         return 0
 

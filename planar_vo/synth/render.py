@@ -9,7 +9,9 @@ import numpy as np
 
 from planar_vo.synth.lens import SynthCamera
 from planar_vo.synth.mount import BODY_FROM_OPTICAL, DEFAULT_MOUNTING, CameraMount
+from planar_vo.synth.raycast import intersect
 from planar_vo.synth.scene import Texture, make_ground_texture
+from planar_vo.synth.terrain import FLAT, Terrain
 from planar_vo.synth.vehicle import Trajectory
 
 
@@ -57,13 +59,21 @@ class Renderer:
     integrates the light over its pixel; with 1 each pixel is its centre's ray, mip-mapped,
     whose aliasing biases KLT (the rigid model's t_rel on the sprung scenarios' paths is
     0.035 % point-sampled, 0.019-0.020 % area-sampled at 2x).
+
+    On a ``terrain`` (not flat) frames of a trajectory with a 3D pose go through
+    :meth:`render_world`: every pixel's ray is intersected with the height field
+    (:func:`planar_vo.synth.raycast.intersect`), the texture sampled at the hit's world (x, y)
+    with the mip level of the hit's footprint (finite differences of neighbouring hits), and
+    boxes stand on the ground under their centre.
     """
 
     def __init__(self, camera: SynthCamera | None = None, mounting=None,
                  texture: Texture | None = None, boxes=(), *, max_range: float = 60.0,
                  noise_sigma: float = 1.5, seed: int = 0, illumination: bool = True,
                  haze: bool = True, max_tilt: float = math.radians(4.0),
-                 exposure: np.ndarray | None = None, supersample: int = 1) -> None:
+                 exposure: np.ndarray | None = None, supersample: int = 1,
+                 terrain: Terrain | None = None) -> None:
+        self.terrain = FLAT if terrain is None else terrain
         if int(supersample) != supersample or supersample < 1:
             raise ValueError(f'supersample must be a whole number >= 1, got {supersample}')
         self.camera = camera or SynthCamera()
@@ -182,6 +192,13 @@ class Renderer:
 
     def render_frame(self, traj: Trajectory, k: int) -> np.ndarray:
         """Frame k of ``traj``: its base_link pose and, when set, its true camera pose."""
+        if traj.pose3d is not None:
+            rot, pos = traj.pose3d.rotation[k], traj.pose3d.position[k]
+            if traj.camera is None:
+                cam_pos, cam_rot = self.origin, self.base_from_optical
+            else:
+                cam_pos, cam_rot = traj.camera.position[k], traj.camera.base_from_optical(k)
+            return self.render_world(k, pos + rot @ cam_pos, rot @ cam_rot)
         if traj.camera is None:
             return self.render(traj.x[k], traj.y[k], traj.yaw[k], k)
         return self.render_pose(traj.x[k], traj.y[k], traj.yaw[k], k,
@@ -229,6 +246,50 @@ class Renderer:
             self._render_boxes(img, x, y, yaw, position, dirs, depth, sky)
         return self._finish(img, k)
 
+    def render_world(self, k: int, position: np.ndarray,
+                     world_from_optical: np.ndarray) -> np.ndarray:
+        """Frame k over ``self.terrain`` (the first hit of each ray).
+
+        The camera is at ``position`` (3,) in the world frame, rotated by
+        ``world_from_optical`` (3x3).
+        """
+        position = np.asarray(position, np.float64)
+        rotation = np.asarray(world_from_optical, np.float64)
+        if position[2] <= float(self.terrain.height(position[0], position[1])):
+            raise ValueError('the camera must stay above the ground')
+        dirs = _rotate(rotation, self._unit_rays.astype(np.float64))
+        sky = self._sky_fast(dirs[2].astype(np.float32))
+        img = sky.copy()
+        t, hit = intersect(self.terrain, position, dirs, self.max_range)
+        idx = np.flatnonzero(hit)
+        gx = position[0] + t[idx] * dirs[0, idx]
+        gy = position[1] + t[idx] * dirs[1, idx]
+        dist = np.hypot(gx - position[0], gy - position[1])
+        # mip level from the footprint: finite differences of neighbouring hits
+        cam, s = self.camera, self.supersample
+        shape = (cam.height * s, cam.width * s)
+        grid = np.full((shape[0] * shape[1], 2), np.nan)
+        grid[idx, 0], grid[idx, 1] = gx, gy
+        grid = grid.reshape(*shape, 2)
+        du = np.linalg.norm(np.gradient(grid, axis=1), axis=2)
+        dv = np.linalg.norm(np.gradient(grid, axis=0), axis=2)
+        foot = np.fmax(du, dv).ravel()[idx]
+        level = np.log2(np.maximum(np.nan_to_num(foot, nan=1e3) / self.texture.texel, 1e-9))
+        level = np.clip(level, 0.0, self.texture.nlevels - 1.0)
+        l0 = np.floor(level).astype(np.int64)
+        order = np.argsort(l0, kind='stable')
+        idx, gx, gy, dist = idx[order], gx[order], gy[order], dist[order]
+        val = self.texture.sample_sorted(gx, gy, l0[order],
+                                         (level[order] - l0[order]).astype(np.float32))
+        fog = self._haze(dist)
+        behind = img[idx]
+        img[idx] = val + (behind - val) * fog
+        if self.boxes:
+            depth = np.where(hit, t, np.inf)
+            self._render_boxes(img, 0.0, 0.0, 0.0, position, dirs.astype(np.float32), depth,
+                               sky, ground=self.terrain)
+        return self._finish(img, k)
+
     @staticmethod
     def _sky_fast(up: np.ndarray) -> np.ndarray:
         """:meth:`_sky` in float32 arithmetic (``sin(arcsin(up)) = up``)."""
@@ -248,27 +309,34 @@ class Renderer:
 
     def _render_boxes(self, img: np.ndarray, x: float, y: float, yaw: float,
                       origin: np.ndarray, dirs: np.ndarray, depth: np.ndarray,
-                      sky: np.ndarray) -> None:
+                      sky: np.ndarray, ground: Terrain | None = None) -> None:
         """Draw the boxes over ``img`` seen from base_link pose (x, y, yaw).
 
         ``origin`` and the unit pixel rays ``dirs`` (3, N) are in base_link; ``depth`` is the
-        ground's ray length per pixel, ``sky`` the sky behind the haze.
+        ground's ray length per pixel, ``sky`` the sky behind the haze. On a ``ground``
+        terrain (world frame: x = y = yaw = 0) each box stands on the height under its centre
+        and reaches 0.5 m below it (the ground hides that part).
         """
         c, s = math.cos(yaw), math.sin(yaw)
-        ox, oy, oz = origin
+        ox, oy, oz_camera = origin
         cwx, cwy = x + c * ox - s * oy, y + s * ox + c * oy  # camera centre in odom
         cands = []
         for b in self.boxes:
+            if ground is None:
+                oz, bottom = oz_camera, 0.0
+            else:  # the box's own vertical frame: z = 0 on the ground under its centre
+                oz, bottom = oz_camera - float(ground.height(b.x, b.y)), -0.5
             dx, dy = b.x - cwx, b.y - cwy
-            r = math.sqrt(b.half_x ** 2 + b.half_y ** 2 + (b.height / 2) ** 2)
-            dist = math.sqrt(dx * dx + dy * dy + (b.height / 2 - oz) ** 2)
+            mid, half = (b.height + bottom) / 2, (b.height - bottom) / 2
+            r = math.sqrt(b.half_x ** 2 + b.half_y ** 2 + half ** 2)
+            dist = math.sqrt(dx * dx + dy * dy + (mid - oz) ** 2)
             if dist - r > self.max_range:
                 continue
             # Direction to the centre in base_link.
-            vb = np.array([c * dx + s * dy, -s * dx + c * dy, b.height / 2 - oz]) / dist
-            cands.append((dist, b, vb, r))
+            vb = np.array([c * dx + s * dy, -s * dx + c * dy, mid - oz]) / dist
+            cands.append((dist, b, vb, r, oz, bottom))
         cands.sort(key=lambda e: e[0])
-        for dist, b, vb, r in cands:
+        for dist, b, vb, r, oz, bottom in cands:
             if dist > r * 1.001:
                 cos_th = math.cos(math.asin(r / dist))
                 vb32 = vb.astype(np.float32)
@@ -291,7 +359,7 @@ class Renderer:
             with np.errstate(divide='ignore', invalid='ignore'):
                 tx1, tx2 = (-b.half_x - olx) / dlx, (b.half_x - olx) / dlx
                 ty1, ty2 = (-b.half_y - oly) / dly, (b.half_y - oly) / dly
-                tz1, tz2 = (0.0 - olz) / dlz, (b.height - olz) / dlz
+                tz1, tz2 = (bottom - olz) / dlz, (b.height - olz) / dlz
             tnx, tfx = np.fmin(tx1, tx2), np.fmax(tx1, tx2)
             tny, tfy = np.fmin(ty1, ty2), np.fmax(ty1, ty2)
             tnz, tfz = np.fmin(tz1, tz2), np.fmax(tz1, tz2)

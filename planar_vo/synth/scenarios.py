@@ -1,4 +1,12 @@
-"""The named driving scenarios, and building a scene, trajectory and renderer from one."""
+"""The named driving scenarios, and building a scene, trajectory and renderer from one.
+
+A scenario composes profiles owned by the modules that use them: the drive
+(:class:`~planar_vo.synth.vehicle.DriveProfile`), the boxes
+(:class:`~planar_vo.synth.scene.ObstacleProfile`), the sprung body
+(:class:`~planar_vo.synth.vehicle.Suspension`) and the terrain kind
+(:data:`~planar_vo.synth.terrain.TERRAIN_KINDS`). This module imports them; they never import
+it.
+"""
 
 from __future__ import annotations
 
@@ -9,24 +17,41 @@ from dataclasses import dataclass
 from planar_vo.synth.lens import SynthCamera
 from planar_vo.synth.mount import DEFAULT_MOUNTING, CameraMount
 from planar_vo.synth.render import Renderer, exposure_gains
-from planar_vo.synth.scene import make_ground_texture, make_obstacles
-from planar_vo.synth.vehicle import RIGID, Suspension, make_trajectory, mount_camera
+from planar_vo.synth.ride import CHASSIS, ride_over, with_world_path
+from planar_vo.synth.scene import ObstacleProfile, make_ground_texture, make_obstacles
+from planar_vo.synth.terrain import TERRAIN_KINDS, Terrain, TerrainError, make_terrain
+from planar_vo.synth.vehicle import (
+    RIGID,
+    DriveProfile,
+    Suspension,
+    make_trajectory,
+    mount_camera,
+)
+
+VEHICLES = {'car': 'a car: rear axle (base_link) and front axle 2.7 m apart, track 1.6 m',
+            'diff_drive': 'a differential-drive robot: two wheels 0.5 m apart (base_link '
+                          'between them) and a caster 0.35 m behind'}
 
 
 @dataclass(frozen=True)
 class Scenario:
-    """Driving profile, obstacle density, body motion and the scenario's camera attitude."""
+    """Drive, boxes, body motion, terrain and the scenario's camera attitude."""
 
     name: str
-    speed: tuple = (3.0, 8.0)  # m/s range of the speed knots
-    steer: float = 0.06  # max |steering angle| of the knots (rad)
-    knot_dt: tuple = (2.0, 3.5)  # seconds between knots
-    obstacles_per_100m: float = 6.0
-    ahead_fraction: float = 0.2  # fraction of obstacles close to the path (seen ahead)
+    drive: DriveProfile = DriveProfile()
+    obstacles: ObstacleProfile = ObstacleProfile()
     description: str = ''
     suspension: Suspension = RIGID
     camera_roll: float = 0.0  # rad, the scenario's mounting (else DEFAULT_MOUNTING's)
     camera_yaw: float = 0.0
+    terrain: str = 'flat'  # a key of TERRAIN_KINDS
+
+    # The profiles' fields, read through the scenario (make_trajectory(SCENARIOS[...]) works).
+    speed = property(lambda self: self.drive.speed)
+    steer = property(lambda self: self.drive.steer)
+    knot_dt = property(lambda self: self.drive.knot_dt)
+    obstacles_per_100m = property(lambda self: self.obstacles.per_100m)
+    ahead_fraction = property(lambda self: self.obstacles.ahead_fraction)
 
     @property
     def mounting(self) -> CameraMount:
@@ -35,31 +60,41 @@ class Scenario:
                                    yaw=self.camera_yaw)
 
 
+def _drive(speed, steer, knot_dt=(2.0, 3.5)) -> DriveProfile:
+    return DriveProfile(speed, steer, knot_dt)
+
+
+def _boxes(per_100m, ahead_fraction=0.2) -> ObstacleProfile:
+    return ObstacleProfile(per_100m, ahead_fraction)
+
+
 SCENARIOS = {
-    'straight': Scenario('straight', speed=(5.0, 5.0), steer=0.0, obstacles_per_100m=4.0,
+    'straight': Scenario('straight', _drive((5.0, 5.0), 0.0), _boxes(4.0),
                          description='straight line at a constant 5 m/s, few obstacles'),
-    'gentle': Scenario('gentle', speed=(4.0, 7.0), steer=0.04, obstacles_per_100m=4.0,
+    'gentle': Scenario('gentle', _drive((4.0, 7.0), 0.04), _boxes(4.0),
                        description='gentle curves (radius >= ~65 m), 4-7 m/s'),
-    'tight': Scenario('tight', speed=(2.0, 3.0), steer=0.35, knot_dt=(1.5, 2.5),
-                      obstacles_per_100m=4.0,
+    'tight': Scenario('tight', _drive((2.0, 3.0), 0.35, (1.5, 2.5)), _boxes(4.0),
                       description='tight turns (radius down to ~7.5 m), 2-3 m/s'),
-    'obstacles': Scenario('obstacles', speed=(3.0, 6.0), steer=0.05, obstacles_per_100m=30.0,
-                          ahead_fraction=0.35,
+    'obstacles': Scenario('obstacles', _drive((3.0, 6.0), 0.05), _boxes(30.0, 0.35),
                           description='gentle curves among many boxes (30 per 100 m)'),
-    'default': Scenario('default', speed=(3.0, 8.0), steer=0.08, obstacles_per_100m=8.0,
+    'default': Scenario('default', _drive((3.0, 8.0), 0.08), _boxes(8.0),
                         description='realistic mix: curves, speed changes 3-8 m/s, boxes'),
-    'car': Scenario('car', speed=(3.0, 8.0), steer=0.14, obstacles_per_100m=6.0,
+    'car': Scenario('car', _drive((3.0, 8.0), 0.14), _boxes(6.0),
                     suspension=Suspension.degrees(1.0, 0.6, 0.015),
                     camera_roll=math.radians(0.5), camera_yaw=math.radians(-0.7),
                     description='a sprung car body (pitch <= 1 deg, roll <= 0.6 deg, '
                                 'bounce <= 1.5 cm), curves, speed changes 3-8 m/s, camera '
                                 'rolled 0.5 deg and yawed -0.7 deg'),
-    'rough': Scenario('rough', speed=(3.0, 7.0), steer=0.16, obstacles_per_100m=6.0,
+    'rough': Scenario('rough', _drive((3.0, 7.0), 0.16), _boxes(6.0),
                       suspension=Suspension.degrees(2.0, 1.2, 0.03),
                       camera_roll=math.radians(-0.6), camera_yaw=math.radians(0.8),
                       description='rough road, twice the car body motion (pitch <= 2 deg, '
                                   'roll <= 1.2 deg, bounce <= 3 cm), camera rolled -0.6 deg '
                                   'and yawed 0.8 deg'),
+    'road': Scenario('road', _drive((3.0, 8.0), 0.08), _boxes(8.0),
+                     suspension=Suspension.degrees(1.0, 0.6, 0.015), terrain='all',
+                     description="default's drive on a real road (terrain all: grades, "
+                                 'bumps, camber, hills) in the sprung car body'),
 }
 
 
@@ -67,8 +102,16 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
                     rate: float = 30.0, camera: SynthCamera | None = None, mounting=None,
                     suspension: Suspension | None = None, noise_sigma: float = 1.5,
                     max_range: float = 60.0, obstacles: bool = True, exposure: float = 0.0,
-                    supersample: int = 1):
+                    supersample: int = 1, terrain: str | Terrain | None = None,
+                    vehicle: str = 'car'):
     """Build the scene; return ``(renderer, trajectory)``.
+
+    ``terrain``: a key of :data:`TERRAIN_KINDS` or a :class:`Terrain` (default: the
+    scenario's, ``flat`` for most); ``vehicle``: a key of :data:`VEHICLES`, whose wheels set
+    the pose on a terrain (on flat ground both follow the same planar path). On terrain
+    ``traj.pose3d`` is base_link's 3D pose in the world frame and (x, y, yaw) the planar
+    truth along the surface (:mod:`planar_vo.synth.ride`); ``renderer.terrain`` is the
+    height field.
 
     ``mounting`` (a :class:`CameraMount` or anything with its six numbers) and ``suspension``
     default to the scenario's. ``exposure`` is the auto-exposure range (0.2: gain within
@@ -81,14 +124,26 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
         raise ValueError(f'exposure must be in [0, 1), got {exposure}')
     if scenario not in SCENARIOS:
         raise ValueError(f'unknown scenario {scenario!r} (choose from {", ".join(SCENARIOS)})')
+    if vehicle not in VEHICLES:
+        raise ValueError(f'unknown vehicle {vehicle!r} (choose from {", ".join(VEHICLES)})')
     sc = SCENARIOS[scenario]
     mounting = CameraMount.of(mounting or sc.mounting)
     suspension = sc.suspension if suspension is None else suspension
-    traj = mount_camera(make_trajectory(sc, frames, rate, seed), mounting, suspension, seed)
-    boxes = make_obstacles(traj, sc, seed, mounting) if obstacles else []
+    traj = make_trajectory(sc.drive, frames, rate, seed)
+    ground = make_terrain(sc.terrain if terrain is None else terrain, seed, traj.x, traj.y) \
+        if not isinstance(terrain, Terrain) else terrain
+    if not ground.flat:
+        traj = ride_over(sc.drive, ground, frames, rate, seed, CHASSIS[vehicle])
+    traj = mount_camera(traj, mounting, suspension, seed)
+    boxes = make_obstacles(with_world_path(traj), sc.obstacles, seed, mounting) \
+        if obstacles else []
     renderer = Renderer(camera, mounting, make_ground_texture(seed), boxes,
                         max_range=max_range, noise_sigma=noise_sigma, seed=seed,
                         max_tilt=suspension.pitch + suspension.roll + math.radians(1.0),
                         exposure=exposure_gains(traj.t, exposure, seed) if exposure else None,
-                        supersample=supersample)
+                        supersample=supersample, terrain=ground)
     return renderer, traj
+
+
+__all__ = ['SCENARIOS', 'TERRAIN_KINDS', 'VEHICLES', 'Scenario', 'TerrainError',
+           'render_scenario']

@@ -13,8 +13,25 @@ import numpy as np
 from planar_vo.synth.mount import DEFAULT_MOUNTING
 
 if TYPE_CHECKING:
-    from planar_vo.synth.scenarios import Scenario
     from planar_vo.synth.vehicle import Trajectory
+
+
+@dataclass(frozen=True)
+class ObstacleProfile:
+    """How many boxes stand beside the road, and how many of them close to the path."""
+
+    per_100m: float = 6.0  # boxes per 100 m of path
+    ahead_fraction: float = 0.2  # fraction of boxes close to the path (seen ahead)
+
+    @classmethod
+    def of(cls, profile) -> ObstacleProfile:
+        """The profile of anything with ``obstacles_per_100m`` and ``ahead_fraction``.
+
+        An ObstacleProfile is returned as it is; a Scenario gives its own.
+        """
+        if isinstance(profile, ObstacleProfile):
+            return profile
+        return cls(float(profile.obstacles_per_100m), float(profile.ahead_fraction))
 
 
 class Texture:
@@ -144,9 +161,13 @@ class Box:
     offset: float = 0.0
 
 
-def make_obstacles(traj: Trajectory, scenario: Scenario, seed: int,
-                   mounting=None) -> list[Box]:
-    """Random boxes beside (and sometimes just off, ahead on) the path, never on it."""
+def make_obstacles(traj: Trajectory, profile, seed: int, mounting=None) -> list[Box]:
+    """Random boxes beside (and sometimes just off, ahead on) the path, never on it.
+
+    ``profile``: an :class:`ObstacleProfile` (or a Scenario); the path is ``traj``'s x, y, yaw
+    (in the world frame the boxes stand in).
+    """
+    profile = ObstacleProfile.of(profile)
     rng = np.random.default_rng([seed, 3])
     # Path samples, extended 40 m beyond the last pose along its heading.
     ext = np.linspace(0.5, 40.0, 80)
@@ -155,7 +176,7 @@ def make_obstacles(traj: Trajectory, scenario: Scenario, seed: int,
     pyaw = np.concatenate([traj.yaw, np.full(ext.size, traj.yaw[-1])])
     s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(px), np.diff(py)))])
     total = s[-1]
-    n = int(round(scenario.obstacles_per_100m * total / 100.0))
+    n = int(round(profile.per_100m * total / 100.0))
     # Vehicle body points (rear axle frame) that must stay clear of every box.
     cam_x = DEFAULT_MOUNTING.x if mounting is None else mounting.x
     body = np.array([-0.9, 0.0, 1.35, 2.7, 3.6, cam_x])
@@ -169,7 +190,7 @@ def make_obstacles(traj: Trajectory, scenario: Scenario, seed: int,
         i = int(np.searchsorted(s, si))
         i = min(i, px.size - 1)
         side = rng.choice([-1.0, 1.0])
-        if rng.random() < scenario.ahead_fraction:
+        if rng.random() < profile.ahead_fraction:
             lat = side * rng.uniform(2.0, 3.2)
         else:
             lat = side * rng.uniform(3.2, 9.0)

@@ -10,16 +10,31 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from planar_vo.synth.mount import BODY_FROM_OPTICAL, CameraMount, rotation_rpy, rpy_of
 
-if TYPE_CHECKING:
-    from planar_vo.synth.scenarios import Scenario
-
 WHEELBASE = 2.7
+
+
+@dataclass(frozen=True)
+class DriveProfile:
+    """How the vehicle is driven: smooth (C1) speed and steering profiles through random knots.
+
+    ``speed``: (lo, hi) m/s of the speed knots; ``steer``: largest |steering angle| of the
+    knots (rad); ``knot_dt``: (lo, hi) seconds between knots. The yaw rate is
+    ``v * tan(steer) / wheelbase``.
+    """
+
+    speed: tuple = (3.0, 8.0)
+    steer: float = 0.06
+    knot_dt: tuple = (2.0, 3.5)
+
+    @classmethod
+    def of(cls, profile) -> DriveProfile:
+        """The profile with the same three fields as ``profile`` (e.g. a Scenario)."""
+        return cls(tuple(profile.speed), float(profile.steer), tuple(profile.knot_dt))
 
 
 @dataclass(frozen=True)
@@ -132,6 +147,25 @@ def camera_poses(mount: CameraMount, body: BodyMotion, suspension: Suspension) -
     return CameraPoses(position, rotation)
 
 
+@dataclass(frozen=True)
+class Pose3D:
+    """The full 3D base_link pose in the world frame at each frame, and its body twist.
+
+    Set on terrain (``planar_vo.synth.ride``); None on flat ground, where world = odom and
+    the planar pose is the whole pose.
+    """
+
+    position: np.ndarray  # (N, 3) m, world
+    rotation: np.ndarray  # (N, 3, 3) world <- base_link
+    linear: np.ndarray  # (N, 3) m/s, base_link velocity in base_link
+    angular: np.ndarray  # (N, 3) rad/s, base_link angular velocity in base_link
+
+    @property
+    def rpy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(roll, pitch, yaw) (N,) each, rad (:func:`rotation_rpy`; positive pitch = down)."""
+        return rpy_of(self.rotation)
+
+
 @dataclass
 class Trajectory:
     """Ground truth at each frame: base_link pose in odom and twist in base_link.
@@ -139,6 +173,9 @@ class Trajectory:
     The twist (``v``, ``omega``) is the instantaneous one at each frame's stamp. ``body`` and
     ``camera`` (set by :func:`render_scenario`) are the sprung body's motion and the true
     camera pose in base_link at each frame; they are not part of the ground-truth odometry.
+    On terrain, ``pose3d`` is base_link's 3D pose in the world frame and (x, y, yaw) is the
+    planar truth: the SE(2) composition of the body-frame planar parts of the 3D motion
+    (distance along the surface; see ``planar_vo.synth.ride``).
     """
 
     t: np.ndarray  # s since the first frame
@@ -152,6 +189,7 @@ class Trajectory:
     accel: np.ndarray | None = None  # dv/dt (m/s^2)
     body: BodyMotion | None = None
     camera: CameraPoses | None = None
+    pose3d: Pose3D | None = None
 
     @property
     def length(self) -> float:
@@ -190,14 +228,24 @@ def _smooth_profile(rng, duration, lo, hi, knot_dt, symmetric=False):
     return f
 
 
-def make_trajectory(scenario: Scenario, frames: int, rate: float, seed: int,
-                    wheelbase: float = WHEELBASE, substeps: int = 20) -> Trajectory:
-    """Integrate the bicycle model (RK4 on fine sub-steps) and sample it at the frames."""
+def drive_functions(drive, frames: int, rate: float, seed: int):
+    """``(speed(t), steer(t))`` of a drive of ``frames`` frames at ``rate`` Hz (seeded)."""
+    drive = DriveProfile.of(drive)
     rng = np.random.default_rng([seed, 1])
+    duration = (frames - 1) * (1.0 / rate)  # as make_trajectory always computed it
+    speed = _smooth_profile(rng, duration, *drive.speed, drive.knot_dt)
+    steer = _smooth_profile(rng, duration, 0.0, drive.steer, drive.knot_dt, True)
+    return speed, steer
+
+
+def make_trajectory(drive, frames: int, rate: float, seed: int,
+                    wheelbase: float = WHEELBASE, substeps: int = 20) -> Trajectory:
+    """Integrate the bicycle model (RK4 on fine sub-steps) and sample it at the frames.
+
+    ``drive``: a :class:`DriveProfile` or anything with its fields (e.g. a Scenario).
+    """
     dt = 1.0 / rate
-    duration = (frames - 1) * dt
-    speed = _smooth_profile(rng, duration, *scenario.speed, scenario.knot_dt)
-    steer = _smooth_profile(rng, duration, 0.0, scenario.steer, scenario.knot_dt, True)
+    speed, steer = drive_functions(drive, frames, rate, seed)
 
     # Classic RK4 on sub-steps of h. The yaw rate depends on time only, so every stage is
     # evaluated at once; the sums accumulate in step order, as a loop would add them, and
