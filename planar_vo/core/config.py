@@ -127,11 +127,23 @@ SCHEMA: tuple[Param, ...] = (
           0.5, 0.999999),
     Param('circular_refine', False, 'Keep the circular-motion constraint while refining.'),
     Param('min_inliers', 12, 'Fewest inliers for a frame to count as estimated.', 3, 1000),
-    # Real mountings: attitude to the ground and self-calibration.
-    Param('estimate_attitude', False, "Estimate the camera's pitch, roll and height change to "
-          'the ground every frame, jointly with the motion (a sprung body; a mounting known to '
-          'about a degree). Off: the mounting is taken as rigid and exact (more accurate when '
-          'it is, and the covariances are validated only for it).'),
+    # The ground and real mountings: terrain, attitude and self-calibration.
+    Param('ground_model', 'local', "What the tracks lie on. 'local': the road ahead as a "
+          'smooth surface (grade, cross-slope, curvature and twist relative to the wheels, '
+          'learned frame to frame) and the vehicle rotating between frames as it follows the '
+          'road; holds on grades, crests, bumps, cambered roads and sprung bodies, and learns '
+          "the static mounting (self_calibrate). 'plane': the paper's model, one ground plane "
+          'under the wheels and a rigid, exact mounting (a calibrated rig on a flat floor; '
+          'with estimate_attitude, a sprung body on flat ground).',
+          choices=('local', 'plane')),
+    Param('wheelbase', 2.7, 'With ground_model local: how far ahead of base_link the wheels '
+          'stand on the ground (the front axle; a differential-drive robot: its front caster '
+          'or the front of its footprint), m. The road ahead is free to bend from there.',
+          0.0, 20.0),
+    Param('estimate_attitude', False, "With ground_model plane: estimate the camera's pitch, "
+          'roll and height change to the ground plane every frame, jointly with the motion (a '
+          'sprung body on flat ground; a mounting known to about a degree). Off: the mounting '
+          'is taken as rigid and exact.'),
     Param('attitude_sigma', math.radians(2.0), 'How far the body tilts (pitch, roll) from its '
           'mean attitude, rad (1 sigma).', 1e-4, 0.5),
     Param('attitude_rate', 0.5, 'How fast the body tilts at most, rad/s (1 sigma); the actual '
@@ -149,8 +161,8 @@ SCHEMA: tuple[Param, ...] = (
     Param('bounce_rate', 0.3, 'With estimate_height: how fast the camera height moves at '
           'most, m/s (1 sigma).', 1e-5, 10.0),
     Param('self_calibrate', True, 'Learn the static camera_pitch, camera_roll, camera_yaw and '
-          'camera_x from the drive, starting from the configured values (needs '
-          'estimate_attitude).'),
+          'camera_x from the drive, starting from the configured values (with ground_model '
+          'local, or plane with estimate_attitude).'),
     Param('max_frame_gap', 1.0, 'A larger gap between image stamps, or one backwards, restarts '
           'tracking (the pose is kept, its covariance inflated), s.', 0.01, 3600.0),
 )

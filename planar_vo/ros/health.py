@@ -82,8 +82,12 @@ class Health:
             self._arrivals.popleft()
         return self._arrivals[-1] - self._arrivals[0] if self._arrivals else 0.0
 
-    def report(self, now: float, *, calibrated: bool) -> tuple[int, str, dict[str, str]]:
-        """(level, message, values) at ``now``; call it about once a second."""
+    def report(self, now: float, *, calibrated: bool,
+               ground_irregular: bool = False) -> tuple[int, str, dict[str, str]]:
+        """(level, message, values) at ``now``; call it about once a second.
+
+        ``ground_irregular``: the odometry does not trust the ground ahead (WARN).
+        """
         rate = self.rate(now)
         problems: list[tuple[int, str]] = []
         if self._last_arrival is None:
@@ -96,6 +100,8 @@ class Health:
             problems.append((ERROR, f'tracking lost ({self.last_failure})'))
         elif self._failed_in_a_row:
             problems.append((WARN, self.last_failure))
+        if calibrated and ground_irregular:
+            problems.append((WARN, 'the ground ahead is irregular: covariance inflated'))
         if rate > 0 and self._usual_rate and rate < 0.5 * self._usual_rate:
             problems.append((WARN, f'image rate {rate:.1f} Hz, below half of the usual '
                                    f'{self._usual_rate:.1f} Hz'))

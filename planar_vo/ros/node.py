@@ -306,8 +306,9 @@ class PlanarVoNode(Node):
 
     @_guarded('diagnostics')
     def _publish_diagnostics(self) -> None:
-        level, message, values = self._health.report(time.monotonic(),
-                                                     calibrated=self.vo is not None)
+        level, message, values = self._health.report(
+            time.monotonic(), calibrated=self.vo is not None,
+            ground_irregular=self.vo is not None and self.vo.ground_irregular)
         values['unexpected errors'] = str(self._errors)
         if self.vo is not None:
             values.update(self.vo.diagnostics())

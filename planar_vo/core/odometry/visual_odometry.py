@@ -39,6 +39,7 @@ from planar_vo.core.geometry.camera import CameraModel, Mounting, rays_through
 from planar_vo.core.geometry.se2 import twist_motion
 from planar_vo.core.odometry.attitude_filter import AttitudeFilter, AttitudeNoise
 from planar_vo.core.odometry.frame_gate import FrameGate
+from planar_vo.core.odometry.ground_filter import LocalGroundFilter
 from planar_vo.core.odometry.pose_integrator import PoseIntegrator
 from planar_vo.core.odometry.result import FrameResult, FrameStatus
 
@@ -71,6 +72,7 @@ class VisualOdometry:
         min_inliers: int = 12,
         max_frame_gap: float = 1.0,
         attitude: AttitudeNoise | None = None,
+        ground: LocalGroundFilter | None = None,
         self_calibrate: bool = True,
         klt_prewarp: bool = True,
         klt_first_search: bool = True,
@@ -89,6 +91,7 @@ class VisualOdometry:
         self.integrator = PoseIntegrator()
         self.attitude_filter = (None if attitude is None else
                                 AttitudeFilter(attitude, mounting, self_calibrate=self_calibrate))
+        self.ground = ground  # None: the ground is one plane under the wheels (the paper's)
         self.counters = {'frames': 0, 'estimated': 0, 'no_estimate': 0, 'reinitialized': 0,
                          'time_jumps': 0, 'blank': 0, 'skipped': 0}
         self._rng = np.random.default_rng(0)
@@ -112,7 +115,10 @@ class VisualOdometry:
             ransac_confidence=params['ransac_confidence'],
             circular_refine=params['circular_refine'], min_inliers=params['min_inliers'],
             max_frame_gap=params['max_frame_gap'],
-            attitude=AttitudeNoise.from_params(params) if params['estimate_attitude'] else None,
+            attitude=AttitudeNoise.from_params(params) if (
+                params['ground_model'] == 'plane' and params['estimate_attitude']) else None,
+            ground=LocalGroundFilter.from_params(mounting_from_params(params), params) if (
+                params['ground_model'] == 'local') else None,
             self_calibrate=params['self_calibrate'], klt_prewarp=params['klt_prewarp'],
             klt_first_search=params['klt_first_search'])
 
@@ -150,19 +156,31 @@ class VisualOdometry:
         self._failed_frames = 0
         if self.attitude_filter is not None:
             self.attitude_filter.reset()
+        if self.ground is not None:
+            self.ground.reset()
+
+    @property
+    def _tilt_filter(self) -> AttitudeFilter | LocalGroundFilter | None:
+        """The part that estimates the camera's tilt and learns the mounting, if any."""
+        return self.ground if self.ground is not None else self.attitude_filter
+
+    @property
+    def ground_irregular(self) -> bool:
+        """True when the last pair saw ground too irregular to trust (covariance inflated)."""
+        return self.ground is not None and self.ground.irregular
 
     def mounting_estimate(self) -> MountingEstimate:
         """The self-calibrated static mounting so far, with standard deviations."""
-        if self.attitude_filter is None:
+        if self._tilt_filter is None:
             return MountingCalibrator(self.configured_mounting).estimate()
-        return self.attitude_filter.calibrator.estimate()
+        return self._tilt_filter.calibrator.estimate()
 
     def mounting_diagnostics(self) -> tuple[dict[str, str], dict[str, str]]:
         """(key/values for diagnostics, advice per parameter the drive says is off).
 
         Empty while self-calibration is off.
         """
-        if self.attitude_filter is None or not self.attitude_filter.self_calibrate:
+        if self._tilt_filter is None or not self._tilt_filter.self_calibrate:
             return {}, {}
         estimate, configured = self.mounting_estimate(), self.configured_mounting
         now = calibrated_params(configured)
@@ -206,11 +224,16 @@ class VisualOdometry:
             self.attitude_filter = AttitudeFilter(
                 self.attitude_filter.noise, mounting,
                 self_calibrate=self.attitude_filter.self_calibrate)
+        if self.ground is not None:
+            self.ground = LocalGroundFilter(mounting, rates=self.ground.rates,
+                                            hinge=self.ground.hinge,
+                                            self_calibrate=self.ground.self_calibrate)
 
     def diagnostics(self) -> dict[str, str]:
         """The estimator's state as /diagnostics key/values (the node adds them as they are)."""
         c, m = self.counters, self.mounting
-        return {
+        ground = {} if self.ground is None else self.ground.diagnostics()
+        return ground | {
             'frames processed': str(c['frames']), 'frames estimated': str(c['estimated']),
             'frames without estimate': str(c['no_estimate']),
             'tracking restarts': str(c['reinitialized']), 'time jumps': str(c['time_jumps']),
@@ -249,9 +272,9 @@ class VisualOdometry:
         Each part replaces its arrays, never changes them in place; the counters, a dict
         changed in place, are copied.
         """
-        parts = (self.front, self.front.tracker, self.gate, self.integrator,
-                 self.attitude_filter, None if self.attitude_filter is None
-                 else self.attitude_filter.calibrator)
+        tilt = self._tilt_filter
+        parts = (self.front, self.front.tracker, self.gate, self.integrator, tilt,
+                 None if tilt is None else tilt.calibrator)
         return (dict(vars(self)), dict(self.counters),
                 [(part, copy.copy(vars(part))) for part in parts if part is not None])
 
@@ -300,16 +323,16 @@ class VisualOdometry:
 
     def _current_geometry(self) -> tuple[Mounting, TransferModel]:
         """The mounting tilted by the current attitude estimate, and its transfer model."""
-        if self.attitude_filter is None:
+        if self._tilt_filter is None:
             return self.mounting, self._model
-        mounting = self.attitude_filter.tilted(self.mounting)
+        mounting = self._tilt_filter.tilted(self.mounting)
         return mounting, TransferModel.from_camera(mounting, self.camera)
 
     def _hypothesis_threshold(self, stamp: float) -> float:
         """Inlier threshold (px) of the hypotheses (see AttitudeFilter.hypothesis_threshold)."""
-        if self.attitude_filter is None:
+        if self._tilt_filter is None:
             return self.inlier_threshold
-        return self.attitude_filter.hypothesis_threshold(
+        return self._tilt_filter.hypothesis_threshold(
             self.inlier_threshold, self._model.focal_px, stamp - self._ref_stamp)
 
     def _estimate(self, stamp: float, t0: float) -> FrameResult:
@@ -322,7 +345,7 @@ class VisualOdometry:
         p1, v1 = mounting.ground_points(rays1, self.horizon_margin)
         p2, v2 = mounting.ground_points(rays_through(m2), self.horizon_margin)
         ok = v1 & v2
-        if self.attitude_filter is not None:
+        if self._tilt_filter is not None:
             ok &= self.front.window_inside(ref_px) & self.front.window_inside(cur_px)
         n = int(np.count_nonzero(ok))
         t_pose = time.perf_counter()
@@ -335,8 +358,8 @@ class VisualOdometry:
                     threshold_px=self._hypothesis_threshold(stamp),
                     confidence=self.ransac_confidence,
                     circular_refine=self.circular_refine, rng=self._rng)
-                if self.attitude_filter is not None:
-                    est, calibrated = self.attitude_filter.refine(
+                if self._tilt_filter is not None:
+                    est, calibrated = self._tilt_filter.refine(
                         est, rays1[ok], m2[ok], self.mounting, model,
                         dt=stamp - self._ref_stamp, inlier_threshold=self.inlier_threshold,
                         start_threshold=self._hypothesis_threshold(stamp),
@@ -409,8 +432,8 @@ class VisualOdometry:
         self.integrator.restart(gap, extrapolate=extrapolate)
         self._failed_frames = 0
         self.tracker.reset()
-        if self.attitude_filter is not None:
-            self.attitude_filter.restart()
+        if self._tilt_filter is not None:
+            self._tilt_filter.restart()
         self._ref_stamp = stamp
         self.gate.last_stamp = stamp
 

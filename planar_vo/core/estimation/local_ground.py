@@ -1,0 +1,201 @@
+"""The motion over a local ground surface: the road ahead is not the plane under the wheels.
+
+The wheels stand on the ground under the vehicle; the camera sees the ground 2-7 m ahead. On a
+grade change, a crest, a bump or a crowned road these differ, and a track taken to lie on the
+plane under the wheels biases the motion (DESIGN.md §7). Measured on rendered drives (before
+this model): 93 % of the step error on grades was the vehicle's pitch *change* between the
+frames (-0.39 of the step per degree), which the planar 3-DoF motion cannot hold; most of the
+rest was the surface ahead bending away from the wheel plane.
+
+So the frame pair is explained by (all in base_link of frame 1, whose x-y plane is the plane
+through the wheel contacts):
+
+- the planar motion (x, y, yaw) of base_link, as the paper's model;
+- the rotation of the vehicle between the frames (roll, pitch), about the wheel contacts
+  (a pivot on the ground under base_link: the camera also moves), and the camera's height
+  change: the wheels follow the road;
+- the road ahead as a quadratic surface hinged at the front axle, ``z = ep u + er y +
+  k u^2 / 2 + kxy u y + kyy y^2 / 2`` with ``u = x - hinge``: its grade (ep) and cross-slope
+  (er) relative to the wheels, its curvature along (k) and across (kyy) and its twist (kxy).
+
+Each track's ray from camera 1 meets the surface; the point is carried into camera 2 and
+compared with where it was seen (the transfer error, normalized coordinates). The metric
+scale is still the camera height above the wheel plane: the surface passes through the
+wheel contacts' plane at the hinge. Gauss-Newton with analytic derivatives, priors on the
+rotation (the body's rate) and on the surface (the last frame pair's, moved on by the travel),
+and Cauchy weights: tracks off the smooth surface (a bump's faces, the far side of a crown)
+weigh less. Numpy only; no ROS.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from planar_vo.core.errors import PoseEstimationError
+from planar_vo.core.estimation.attitude import body_tilt
+from planar_vo.core.geometry.camera import Mounting
+
+__all__ = ['SURFACE_TERMS', 'GroundPrior', 'LocalGroundResult', 'refine_on_local_ground',
+           'surface_residuals']
+
+SURFACE_TERMS = ('grade', 'cross_slope', 'curvature', 'twist', 'cross_curvature')
+_N = 11  # x, y, yaw, roll, pitch, dh of frame 2, then the five surface terms
+_MIN_SIGMA_PX = 0.05  # residuals below this (px) are not believed: KLT is never better
+_E_Z = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True)
+class GroundPrior:
+    """What is known before the pair: the rotation's spread, the surface's mean and spread."""
+
+    rotation_cov: np.ndarray  # (3, 3) over frame 2's roll, pitch (rad) and height change (m)
+    surface: np.ndarray  # (5,) SURFACE_TERMS
+    surface_cov: np.ndarray  # (5, 5)
+
+
+@dataclass
+class LocalGroundResult:
+    """Motion, rotation and surface after the refinement."""
+
+    motion: np.ndarray  # (3,) x, y, yaw of base_link 2 in base_link 1
+    covariance: np.ndarray  # (3, 3) marginal over (x, y, yaw)
+    rotation: np.ndarray  # (3,) roll, pitch (rad), height change (m) of frame 2
+    surface: np.ndarray  # (5,) SURFACE_TERMS
+    surface_cov: np.ndarray  # (5, 5)
+    inliers: np.ndarray  # (N,) bool
+    weights: np.ndarray  # (N,) the Cauchy weight of each inlier (0 for outliers)
+    rms_px: float
+
+
+def _coefficients(surface: np.ndarray, a: float, cy: float, d: np.ndarray):
+    """A s^2 + B s + C = 0 for the ray ``c + s d`` on the surface, and their derivatives.
+
+    ``a``: camera x minus the hinge; ``cy``: camera y; the camera height is added by the
+    caller (C's constant). Returns A, B, C (N,) and dA, dB, dC (5, N | scalar).
+    """
+    ep, er, k, kxy, kyy = surface
+    dx, dy, dz = d
+    A = 0.5 * k * dx * dx + kxy * dx * dy + 0.5 * kyy * dy * dy
+    B = ep * dx + er * dy + k * a * dx + kxy * (a * dy + cy * dx) + kyy * cy * dy - dz
+    C = ep * a + er * cy + 0.5 * k * a * a + kxy * a * cy + 0.5 * kyy * cy * cy
+    zero = np.zeros_like(dx)
+    dA = np.stack([zero, zero, 0.5 * dx * dx, dx * dy, 0.5 * dy * dy])
+    dB = np.stack([dx, dy, a * dx, a * dy + cy * dx, cy * dy])
+    dC = np.array([a, cy, 0.5 * a * a, a * cy, 0.5 * cy * cy])
+    return A, B, C, dA, dB, dC
+
+
+def surface_residuals(params: np.ndarray, v1: np.ndarray, m2: np.ndarray, mounting: Mounting,
+                      hinge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Residuals (2, N), Jacobian (11, 2, N) and validity (N,) of the transfer over the surface.
+
+    Args:
+        params: (11,) x, y, yaw; roll, pitch, height change of frame 2; SURFACE_TERMS.
+        v1: (3, N) frame-1 ray directions in base_link.
+        m2: (2, N) observed frame-2 normalized image coordinates.
+        mounting: camera 1 in base_link 1 (camera 2 is it after the motion and rotation).
+        hinge: x (m, base_link) where the surface leaves the wheel plane (the front axle).
+    """
+    x, y, yaw, roll, pitch, dh = params[:6]
+    surface = params[6:]
+    c1 = mounting.position
+    a, cy = c1[0] - hinge, c1[1]
+    A, B, C, dA, dB, dC = _coefficients(surface, a, cy, v1)
+    C = C - c1[2]
+    disc = B * B - 4.0 * A * C
+    hit = (disc > 0.0) & (B > 1e-9)
+    root = np.sqrt(np.where(hit, disc, 1.0))
+    s = np.where(hit, -2.0 * C / np.where(hit, B + root, 1.0), 0.0)
+    hit &= s > 0.0
+    P = c1[:, None] + s * v1  # (3, N) the ground points in base_link 1
+    # ds/dtheta = -(s^2 dA + s dB + dC) / (2 A s + B), theta the surface terms
+    ds = -(s * s * dA + s * dB + dC[:, None]) / np.where(hit, 2.0 * A * s + B, 1.0)
+    c, sn = np.cos(yaw), np.sin(yaw)
+    rz_t = np.array([[c, sn], [-sn, c]])
+    q = rz_t @ (P[:2] - np.array([[x], [y]]))
+    Pb2 = np.vstack([q, P[2:3]])  # in base_link 2, before its rotation
+    R = body_tilt(roll, pitch)  # frame 2 rotated about the contacts (base_link's origin)
+    cp, sp, cr, sr = np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+    ry_t = np.array([[cp, 0.0, -sp], [0.0, 1.0, 0.0], [sp, 0.0, cp]])
+    rx_t = np.array([[1.0, 0.0, 0.0], [0.0, cr, sr], [0.0, -sr, cr]])
+    d_ry_t = np.array([[-sp, 0.0, -cp], [0.0, 0.0, 0.0], [cp, 0.0, -sp]])
+    d_rx_t = np.array([[0.0, 0.0, 0.0], [0.0, -sr, cr], [0.0, -cr, -sr]])
+    lifted = Pb2 - (dh * _E_Z)[:, None]
+    u = R.T @ lifted - c1[:, None]  # camera 2 = R c1 + dh: u = R^T (Pb2 - dh z) - c1
+    optical_from_base = mounting.base_from_optical.T
+    o = optical_from_base @ u
+    front = (o[2] > 1e-9) & hit
+    iz = np.divide(1.0, o[2], out=np.zeros_like(o[2]), where=front)
+    m = o[:2] * iz
+    G = optical_from_base @ R.T
+    do = np.empty((_N, 3, o.shape[1]))
+    Gq = G[:, :2]
+    do[0:2] = -(Gq @ rz_t).T[:, :, None]
+    do[2] = Gq @ np.stack([q[1], -q[0]])
+    do[3] = optical_from_base @ (d_rx_t @ (ry_t @ lifted))
+    do[4] = optical_from_base @ (rx_t @ (d_ry_t @ lifted))
+    do[5] = -G[:, 2][:, None]
+    G_p = np.hstack([Gq @ rz_t, G[:, 2:3]])  # d o / d P (3, 3)
+    for j in range(5):
+        do[6 + j] = G_p @ (v1 * ds[j])
+    J = (do[:, :2] - do[:, 2:3] * m) * iz
+    return m - m2, J, front
+
+
+def refine_on_local_ground(
+    motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, mounting: Mounting,
+    prior: GroundPrior, *, focal_px: float, threshold_px: float, hinge: float,
+    start_threshold_px: float | None = None, cauchy: float = 1.0, iterations: int = 8,
+) -> LocalGroundResult:
+    """Gauss-Newton over (motion, frame-2 rotation, surface) with priors and Cauchy weights.
+
+    The inliers are chosen again at every step, the threshold halving from
+    ``start_threshold_px`` (a jolt moves every point off the start) down to ``threshold_px``.
+    Each inlier weighs ``1 / (1 + (r / (cauchy sigma))^2)``, sigma the inliers' noise.
+
+    Args:
+        motion: (3,) starting motion (RANSAC's).
+        v1: (N, 3) frame-1 ray directions in base_link.
+        m2: (N, 2) observed frame-2 normalized coordinates.
+
+    Raises:
+        PoseEstimationError: fewer than 3 correspondences fit.
+    """
+    v1_t = np.ascontiguousarray(v1.T, dtype=float)
+    m2_t = np.ascontiguousarray(m2.T, dtype=float)
+    params = np.concatenate([motion, np.zeros(3), prior.surface])
+    info = np.zeros((_N, _N))
+    info[3:6, 3:6] = np.linalg.inv(prior.rotation_cov)
+    info[6:, 6:] = np.linalg.inv(prior.surface_cov)
+    mean = np.concatenate([np.zeros(6), prior.surface])
+    floor2 = (_MIN_SIGMA_PX / focal_px) ** 2
+    wide = max(threshold_px, start_threshold_px or threshold_px)
+    iterations += int(np.ceil(np.log2(wide / threshold_px)))
+    inliers = np.zeros(len(v1), bool)
+    for i in range(iterations + 1):
+        threshold = max(threshold_px, wide * 0.5 ** i)
+        r, J, front = surface_residuals(params, v1_t, m2_t, mounting, hinge)
+        squared = r[0] * r[0] + r[1] * r[1]
+        selected = front & (squared < (threshold / focal_px) ** 2)
+        changed = not np.array_equal(selected, inliers)
+        inliers = selected
+        count = int(np.count_nonzero(inliers))
+        if count < 3:
+            raise PoseEstimationError(f'only {count} correspondences fit the local ground')
+        sigma2 = max(float(squared[inliers].sum()) / max(2 * count - _N, 1), floor2)
+        weights = inliers / (1.0 + squared / (cauchy * cauchy * sigma2))
+        J_w = (J * weights).reshape(_N, -1)
+        H = J_w @ J.reshape(_N, -1).T / sigma2 + info
+        g = J_w @ r.reshape(-1) / sigma2 + info @ (params - mean)
+        if i == iterations:
+            break
+        step = -np.linalg.solve(H, g)
+        params = params + step
+        if np.max(np.abs(step)) < 1e-7 and not changed and threshold == threshold_px:
+            break
+    covariance = np.linalg.inv(H)
+    rms = focal_px * float(np.sqrt(squared[inliers].mean()))
+    return LocalGroundResult(params[:3].copy(), covariance[:3, :3].copy(), params[3:6].copy(),
+                             params[6:].copy(), covariance[6:, 6:].copy(), inliers, weights, rms)

@@ -1,0 +1,189 @@
+"""The local ground under and ahead of the vehicle, tracked frame to frame.
+
+Each frame pair is refined over the road surface ahead (:mod:`planar_vo.core.estimation.
+local_ground`): the surface's grade, cross-slope, curvature and twist relative to the wheels,
+and the vehicle's rotation between the frames. What one pair learned is the next pair's prior,
+moved on by the distance travelled (the road ahead changes with distance, not time). The mean
+grade and cross-slope over a drive are the camera's static pitch and roll offsets (the road
+ahead is, on average, the road the wheels later stand on): self-calibration learns them with
+the yaw and camera_x (:class:`MountingCalibrator`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from planar_vo.core.errors import PoseEstimationError
+from planar_vo.core.estimation.attitude import tilted_mounting
+from planar_vo.core.estimation.calibration import MountingCalibrator
+from planar_vo.core.estimation.local_ground import (
+    GroundPrior,
+    LocalGroundResult,
+    refine_on_local_ground,
+)
+from planar_vo.core.estimation.ransac import RansacResult, TransferModel
+from planar_vo.core.geometry.camera import Mounting
+
+__all__ = ['LocalGroundFilter']
+
+# The surface before anything is seen (grade, cross-slope in rad; curvatures, twist in 1/m),
+# and how fast each may change per metre travelled: a 4 % grade change over a 10 m vertical
+# curve, 20 m hills of 0.3 m (curvature 0.03 /m), 8 cm speed bumps. Measured on rendered
+# drives: looser lets the surface bend onto bumps, tighter cannot follow hills.
+_SURFACE_SIGMA = np.array([0.05, 0.05, 0.03, 0.03, 0.03])
+_SURFACE_PER_METRE = np.array([0.035, 0.035, 0.014, 0.014, 0.014])
+_SURFACE_FLOOR = np.array([1e-4, 1e-4, 1e-5, 1e-5, 1e-5])
+# Cauchy scale, in the inliers' own noise: tracks off the smooth surface (a bump's faces,
+# past a road's crown) weigh less. On the rendered camber drive 1 took t_rel from 0.25 to
+# 0.08 %; 2: 0.12 %.
+_CAUCHY = 1.0
+_JOLT_SIGMAS = 3.0  # hypotheses find their inliers through a rotation this many sigmas large
+_RATE_MEMORY_S = 2.0
+_MIN_RATE = np.array([0.05, 0.05, 0.01])  # rad/s, rad/s, m/s: the learned rate's floor
+_IRREGULAR_SIGMAS = 3.0  # a surface this many prior sigmas from the last: irregular ground
+_IRREGULAR_INFLATION = 4.0  # its motion's covariance then grows this much
+# Self-calibration of the static tilt: only pairs over smooth ground (curvatures and twist
+# under this, 1/m) count, and the mean is shrunk by its significance: the road's own grade
+# ahead changes over about _TERRAIN_CORRELATION_S (a grade every ~15 m).
+_CALM_CURVATURE = 0.01
+_TERRAIN_CORRELATION_S = 3.0
+_SHRINK_SIGMAS = 2.0
+
+
+class LocalGroundFilter:
+    """The road surface ahead and the vehicle's rotation, per frame pair.
+
+    Its state is the attributes set in :meth:`reset` and the calibrator; each is replaced,
+    never changed in place, so a shallow copy is a snapshot.
+    """
+
+    def __init__(self, mounting: Mounting, *, rates: np.ndarray, hinge: float,
+                 self_calibrate: bool) -> None:
+        self.rates = np.asarray(rates, dtype=float)  # upper bounds: roll, pitch, height rates
+        self.hinge = hinge
+        self.self_calibrate = self_calibrate
+        self.calibrator = MountingCalibrator(mounting)
+        self.reset()
+
+    @classmethod
+    def from_params(cls, mounting: Mounting, params: Any) -> LocalGroundFilter:
+        """From the attitude_rate, bounce_rate, wheelbase and self_calibrate parameters."""
+        rates = np.array([params['attitude_rate'], params['attitude_rate'],
+                          params['bounce_rate']])
+        return cls(mounting, rates=rates, hinge=params['wheelbase'],
+                   self_calibrate=params['self_calibrate'])
+
+    def reset(self) -> None:
+        """Nothing seen yet: a flat road is only the prior's best guess."""
+        self.surface = np.zeros(5)
+        self.surface_cov = np.diag(_SURFACE_SIGMA ** 2)
+        self.rate2 = self.rates ** 2
+        self.rate_samples = 0
+        self.off_surface = 0.0  # share of the tracks the last pair weighed down
+        self.irregular = False
+
+    def restart(self) -> None:
+        """Tracking restarts: the surface ahead is unknown again."""
+        self.surface = np.zeros(5)
+        self.surface_cov = np.diag(_SURFACE_SIGMA ** 2)
+
+    @property
+    def tilt_offset(self) -> np.ndarray:
+        """The camera's learned static (roll, pitch) offset to the configured mounting, rad.
+
+        The mean grade and cross-slope ahead, shrunk towards none by how well the drive knows
+        them (the road's own grades, correlated over ``_TERRAIN_CORRELATION_S``, average out
+        only slowly): a tilt learned wrong biases the scale as much as one not learned.
+        """
+        if not self.self_calibrate:
+            return np.zeros(2)
+        mean = self.calibrator.mean_tilt
+        std = self.calibrator.tilt_std(_TERRAIN_CORRELATION_S)
+        if not np.all(np.isfinite(std)):
+            return np.zeros(2)
+        return mean * mean ** 2 / (mean ** 2 + (_SHRINK_SIGMAS * std) ** 2 + 1e-30)
+
+    def tilted(self, mounting: Mounting) -> Mounting:
+        """``mounting`` with the learned static tilt."""
+        return tilted_mounting(mounting, np.r_[self.tilt_offset, 0.0])
+
+    def hypothesis_threshold(self, inlier_threshold: float, focal_px: float,
+                             dt: float) -> float:
+        """Inlier threshold (px) of the planar hypotheses, ``dt`` s after the reference.
+
+        The vehicle's rotation between the frames (a bump, a crest) moves every point off
+        any planar motion by up to ``_JOLT_SIGMAS`` of the learned rate; the refinement
+        comes down from this threshold to the inlier threshold.
+        """
+        tilt = float(np.sqrt(self.rate2[0] + self.rate2[1])) * dt
+        return max(inlier_threshold, _JOLT_SIGMAS * focal_px * tilt)
+
+    def refine(self, est: RansacResult, rays1: np.ndarray, m2: np.ndarray,
+               mounting: Mounting, model: TransferModel, *, dt: float,
+               inlier_threshold: float, start_threshold: float,
+               min_inliers: int) -> tuple[RansacResult, Mounting | None]:
+        """Refine the motion over the local ground; learn the surface and the mounting.
+
+        ``mounting``: the working mounting (self-calibrated yaw and camera_x); the learned
+        static tilt is added here. Returns the refined result and the self-calibrated
+        mounting to use from now on (None when it did not change). Raises
+        PoseEstimationError, before anything changes, when fewer than ``min_inliers`` fit.
+        """
+        dt = max(dt, 1e-3)
+        camera = self.tilted(mounting)
+        travel = float(np.hypot(est.motion[0], est.motion[1]))
+        step = np.maximum(_SURFACE_PER_METRE * travel, _SURFACE_FLOOR)
+        prior = GroundPrior(np.diag(self.rate2 * dt * dt), self.surface,
+                            self.surface_cov + np.diag(step ** 2))
+        v1 = rays1 @ camera.base_from_optical.T
+        fit = refine_on_local_ground(
+            est.motion, v1, m2, camera, prior, focal_px=model.focal_px,
+            threshold_px=inlier_threshold, start_threshold_px=start_threshold,
+            hinge=self.hinge, cauchy=_CAUCHY)
+        count = int(np.count_nonzero(fit.inliers))
+        if count < min_inliers:
+            raise PoseEstimationError(f'{count} inliers, fewer than {min_inliers}')
+        self.surface, self.surface_cov = fit.surface, fit.surface_cov
+        # Weight 0.1: a residual 3 sigma off the surface (1 % of Gaussian noise).
+        self.off_surface = float(np.mean(fit.weights[fit.inliers] < 0.1))
+        # The surface jumped further than the road can bend over the travel: a bump or a
+        # kerb ahead, not a grade or a hill.
+        jump = np.abs(fit.surface - prior.surface) / np.sqrt(np.diag(prior.surface_cov))
+        self.irregular = float(np.max(jump)) > _IRREGULAR_SIGMAS
+        self._learn_rate(fit, dt)
+        calibrated = None
+        motion_cov = fit.covariance * (_IRREGULAR_INFLATION if self.irregular else 1.0)
+        if self.self_calibrate:
+            # The surface's grade and cross-slope, as the camera's tilt: (roll, pitch).
+            tilt = np.r_[self.tilt_offset - np.r_[fit.surface[1], -fit.surface[0]], 0.0]
+            calm = not self.irregular and np.all(np.abs(fit.surface[2:]) < _CALM_CURVATURE)
+            self.calibrator.add(fit.motion, fit.covariance, tilt if calm else None, dt)
+            if self.calibrator.apply():
+                calibrated = self.calibrator.working
+            x, y, yaw = fit.motion
+            J = np.array([[-y, 0.0], [x, -yaw], [0.0, 0.0]])
+            motion_cov = motion_cov + J @ self.calibrator.applied_covariance() @ J.T
+        return RansacResult(fit.motion, motion_cov, fit.inliers, est.hypotheses,
+                            fit.rms_px), calibrated
+
+    def _learn_rate(self, fit: LocalGroundResult, dt: float) -> None:
+        """How fast the vehicle really rotates, as the attitude filter learns its rate."""
+        sample = fit.rotation ** 2 / (dt * dt)
+        self.rate_samples += 1
+        alpha = min(max(dt / _RATE_MEMORY_S, 1.0 / self.rate_samples), 1.0)
+        self.rate2 = np.clip(self.rate2 + alpha * (sample - self.rate2), _MIN_RATE ** 2,
+                             self.rates ** 2)
+
+    def diagnostics(self) -> dict[str, str]:
+        """What the ground model sees, as /diagnostics key/values."""
+        ep, er, k, _, _ = self.surface
+        return {
+            'ground model': 'local surface',
+            'grade ahead (%)': f'{100 * ep:.2f}',
+            'cross-slope ahead (%)': f'{100 * er:.2f}',
+            'curvature ahead (1/m)': f'{k:.4f}',
+            'off-surface tracks (%)': f'{100 * self.off_surface:.1f}',
+            'ground ahead irregular': str(self.irregular),
+        }
