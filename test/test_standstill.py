@@ -153,3 +153,21 @@ def test_the_zero_motion_test_and_its_hysteresis():
     exit_ = np.sqrt(EXIT_CHI2) * 1e-4
     assert not s.moved(np.array([0.9 * exit_, 0, 0]), cov)  # between the two: stays put
     assert s.moved(np.array([1.1 * exit_, 0, 0]), cov)
+
+
+def test_planar_vo_synth_writes_a_stop_scenario_whole(tmp_path, capsys):
+    """--frames defaults to the scenario's whole schedule; the bag's truth stands still."""
+    from rosbags.highlevel import AnyReader
+    with pytest.raises(SystemExit):
+        synth.main(['--help'])
+    text = capsys.readouterr().out
+    assert all(name in text for name in ('stop_and_go', 'creep', 'red_light'))
+    rc = synth.main([str(tmp_path / 'b'), '--scenario', 'red_light', '--rate', '1', '--width',
+                     '160', '--height', '120', '--quiet'])
+    assert rc == 0
+    with AnyReader([tmp_path / 'b']) as reader:
+        odom = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages()
+                if c.topic == synth.ODOM_TOPIC]
+    assert len(odom) == 71  # 70 s at 1 Hz
+    x = np.array([m.pose.pose.position.x for m in odom])
+    assert np.all(x[6:64] == x[6]) and x[-1] > x[6] + 5.0
