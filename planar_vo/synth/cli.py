@@ -48,8 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('out_bag', metavar='OUT_BAG', help='output bag directory (must not exist)')
     p.add_argument('--scenario', default='default', metavar='NAME',
                    help=f'driving scenario (default: default). {scen}')
-    p.add_argument('--frames', type=positive_int, default=300,
-                   help='number of frames (default: 300)')
+    p.add_argument('--frames', type=positive_int,
+                   help='number of frames (default: the whole drive of a scenario with stops, '
+                        'stop_and_go, creep and red_light; 300 otherwise)')
     p.add_argument('--seed', type=integer, default=0, help='random seed (default: 0)')
     p.add_argument('--rate', type=positive_float, default=30.0,
                    help='frame rate in Hz (default: 30)')
@@ -178,8 +179,10 @@ def main(argv=None) -> int:
                                 dist=tuple(args.dist) if args.dist else None,
                                 distortion_model=args.distortion_model)
 
+    frames = args.frames or scenario.frames(args.rate) or 300
+
     def generate() -> int:
-        res = generate_bag(out, args.scenario, args.frames, args.seed, rate=args.rate,
+        res = generate_bag(out, args.scenario, frames, args.seed, rate=args.rate,
                            camera=camera, mounting=mounting, suspension=suspension,
                            compressed=args.compressed,
                            jpeg_quality=args.jpeg_quality, noise_sigma=args.noise,

@@ -72,7 +72,8 @@ class Renderer:
                  noise_sigma: float = 1.5, seed: int = 0, illumination: bool = True,
                  haze: bool = True, max_tilt: float = math.radians(4.0),
                  exposure: np.ndarray | None = None, supersample: int = 1,
-                 terrain: Terrain | None = None) -> None:
+                 terrain: Terrain | None = None, traffic=(),
+                 frame_times: np.ndarray | None = None) -> None:
         self.terrain = FLAT if terrain is None else terrain
         if int(supersample) != supersample or supersample < 1:
             raise ValueError(f'supersample must be a whole number >= 1, got {supersample}')
@@ -82,6 +83,12 @@ class Renderer:
         self.mounting = CameraMount.of(mounting or DEFAULT_MOUNTING)
         self.texture = texture if texture is not None else make_ground_texture(seed)
         self.boxes = list(boxes)
+        # Moving boxes (scene.MovingBox): where they are at frame k is at frame_times[k].
+        self.traffic = list(traffic)
+        self.frame_times = None if frame_times is None else np.asarray(frame_times, np.float64)
+        if self.traffic and self.frame_times is None:
+            raise ValueError('moving boxes need the frame times')
+        self._still: tuple | None = None  # (pose, ground image) of the last render()
         self.max_range = float(max_range)
         self.noise_sigma = float(noise_sigma)
         self.seed = seed
@@ -176,18 +183,36 @@ class Renderer:
         return (1.0 + 0.05 * math.sin(0.21 * k / 30.0 * 2 * math.pi + ph)
                 + 0.02 * math.sin(0.9 * k / 30.0 * 2 * math.pi + 2 * ph)) * exposure
 
+    def boxes_at(self, k: int) -> list:
+        """The boxes of frame k: the static ones and the moving ones in the scene then."""
+        if not self.traffic:
+            return self.boxes
+        t = float(self.frame_times[k])
+        moving = [box for box in (m.at(t) for m in self.traffic) if box is not None]
+        return self.boxes + moving
+
     def render(self, x: float, y: float, yaw: float, k: int = 0) -> np.ndarray:
-        """Render the image seen from base_link pose (x, y, yaw) in odom; frame index k."""
-        img = self.sky.copy()
-        c, s = math.cos(yaw), math.sin(yaw)
-        gx = x + c * self.g_pts[:, 0] - s * self.g_pts[:, 1]
-        gy = y + s * self.g_pts[:, 0] + c * self.g_pts[:, 1]
-        val = self.texture.sample_sorted(gx, gy, self.g_l0, self.g_frac)
-        sky = img[self.g_idx]
-        img[self.g_idx] = val + (sky - val) * self.g_fog
-        if self.boxes:
+        """Render the image seen from base_link pose (x, y, yaw) in odom; frame index k.
+
+        The ground seen from the last pose rendered is kept: a vehicle standing still costs
+        only its boxes, illumination and noise per frame.
+        """
+        pose = (x, y, yaw)
+        if self._still is not None and self._still[0] == pose:
+            img = self._still[1].copy()
+        else:
+            img = self.sky.copy()
+            c, s = math.cos(yaw), math.sin(yaw)
+            gx = x + c * self.g_pts[:, 0] - s * self.g_pts[:, 1]
+            gy = y + s * self.g_pts[:, 0] + c * self.g_pts[:, 1]
+            val = self.texture.sample_sorted(gx, gy, self.g_l0, self.g_frac)
+            sky = img[self.g_idx]
+            img[self.g_idx] = val + (sky - val) * self.g_fog
+            self._still = (pose, img.copy())
+        boxes = self.boxes_at(k)
+        if boxes:
             self._render_boxes(img, x, y, yaw, self.origin, self.dirs, self.t_ground.copy(),
-                               self.sky)
+                               self.sky, boxes=boxes)
         return self._finish(img, k)
 
     def render_frame(self, traj: Trajectory, k: int) -> np.ndarray:
@@ -240,10 +265,11 @@ class Renderer:
         fog = np.where(ground, self._haze(dist), np.float32(1.0))
         behind = img[self._c_idx]
         img[self._c_idx] = val + (behind - val) * fog
-        if self.boxes:
+        boxes = self.boxes_at(k)
+        if boxes:
             depth = np.full(img.shape[0], np.inf)
             depth[self._c_idx[ground]] = t[ground]
-            self._render_boxes(img, x, y, yaw, position, dirs, depth, sky)
+            self._render_boxes(img, x, y, yaw, position, dirs, depth, sky, boxes=boxes)
         return self._finish(img, k)
 
     def render_world(self, k: int, position: np.ndarray,
@@ -284,10 +310,11 @@ class Renderer:
         fog = self._haze(dist)
         behind = img[idx]
         img[idx] = val + (behind - val) * fog
-        if self.boxes:
+        boxes = self.boxes_at(k)
+        if boxes:
             depth = np.where(hit, t, np.inf)
             self._render_boxes(img, 0.0, 0.0, 0.0, position, dirs.astype(np.float32), depth,
-                               sky, ground=self.terrain)
+                               sky, ground=self.terrain, boxes=boxes)
         return self._finish(img, k)
 
     @staticmethod
@@ -309,8 +336,9 @@ class Renderer:
 
     def _render_boxes(self, img: np.ndarray, x: float, y: float, yaw: float,
                       origin: np.ndarray, dirs: np.ndarray, depth: np.ndarray,
-                      sky: np.ndarray, ground: Terrain | None = None) -> None:
-        """Draw the boxes over ``img`` seen from base_link pose (x, y, yaw).
+                      sky: np.ndarray, ground: Terrain | None = None,
+                      boxes: list | None = None) -> None:
+        """Draw ``boxes`` (default: the static ones) over ``img`` from base_link (x, y, yaw).
 
         ``origin`` and the unit pixel rays ``dirs`` (3, N) are in base_link; ``depth`` is the
         ground's ray length per pixel, ``sky`` the sky behind the haze. On a ``ground``
@@ -321,7 +349,7 @@ class Renderer:
         ox, oy, oz_camera = origin
         cwx, cwy = x + c * ox - s * oy, y + s * ox + c * oy  # camera centre in odom
         cands = []
-        for b in self.boxes:
+        for b in self.boxes if boxes is None else boxes:
             if ground is None:
                 oz, bottom = oz_camera, 0.0
             else:  # the box's own vertical frame: z = 0 on the ground under its centre

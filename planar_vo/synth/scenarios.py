@@ -18,11 +18,18 @@ from planar_vo.synth.lens import SynthCamera
 from planar_vo.synth.mount import DEFAULT_MOUNTING, CameraMount
 from planar_vo.synth.render import Renderer, exposure_gains
 from planar_vo.synth.ride import CHASSIS, ride_over, with_world_path
-from planar_vo.synth.scene import ObstacleProfile, make_ground_texture, make_obstacles
+from planar_vo.synth.scene import (
+    ObstacleProfile,
+    TrafficProfile,
+    make_ground_texture,
+    make_obstacles,
+    make_traffic,
+)
 from planar_vo.synth.terrain import TERRAIN_KINDS, Terrain, TerrainError, make_terrain
 from planar_vo.synth.vehicle import (
     RIGID,
     DriveProfile,
+    SpeedSchedule,
     Suspension,
     make_trajectory,
     mount_camera,
@@ -45,13 +52,25 @@ class Scenario:
     camera_roll: float = 0.0  # rad, the scenario's mounting (else DEFAULT_MOUNTING's)
     camera_yaw: float = 0.0
     terrain: str = 'flat'  # a key of TERRAIN_KINDS
+    traffic: TrafficProfile | None = None  # road users crossing ahead at stops
 
     # The profiles' fields, read through the scenario (make_trajectory(SCENARIOS[...]) works).
     speed = property(lambda self: self.drive.speed)
     steer = property(lambda self: self.drive.steer)
     knot_dt = property(lambda self: self.drive.knot_dt)
+    schedule = property(lambda self: self.drive.schedule)
     obstacles_per_100m = property(lambda self: self.obstacles.per_100m)
     ahead_fraction = property(lambda self: self.obstacles.ahead_fraction)
+
+    @property
+    def duration(self) -> float | None:
+        """Seconds of the scenario's speed schedule (None: a drive of any length)."""
+        return None if self.drive.schedule is None else self.drive.schedule.duration
+
+    def frames(self, rate: float) -> int | None:
+        """Frames at ``rate`` Hz covering the whole schedule (None: any number)."""
+        d = self.duration
+        return None if d is None else int(round(d * rate)) + 1
 
     @property
     def mounting(self) -> CameraMount:
@@ -67,6 +86,14 @@ def _drive(speed, steer, knot_dt=(2.0, 3.5)) -> DriveProfile:
 def _boxes(per_100m, ahead_fraction=0.2) -> ObstacleProfile:
     return ObstacleProfile(per_100m, ahead_fraction)
 
+
+# Stop-and-go: (seconds, m/s) phases; a phase of speed 0 is a full stop (exactly still).
+# Ramps of 2.5 s: 2.4 m/s^2 and 3.8 m/s^3 at most from 0 to 4 m/s.
+STOP_AND_GO = SpeedSchedule(((1.5, 0.0), (5.0, 4.0), (5.0, 0.0), (5.0, 4.0), (6.5, 0.0),
+                             (3.5, -1.5), (5.0, 0.0), (4.5, 3.0), (4.5, 0.0)), ramp=2.5)
+CREEP = SpeedSchedule(((1.5, 0.0), (6.0, 0.03), (2.5, 0.0), (5.0, 0.02), (2.5, 0.0),
+                       (5.0, 0.05), (2.0, 0.0)), ramp=0.5)
+RED_LIGHT = SpeedSchedule(((3.0, 4.0), (63.0, 0.0), (4.0, 4.0)), ramp=2.5)
 
 SCENARIOS = {
     'straight': Scenario('straight', _drive((5.0, 5.0), 0.0), _boxes(4.0),
@@ -95,6 +122,18 @@ SCENARIOS = {
                      suspension=Suspension.degrees(1.0, 0.6, 0.015), terrain='all',
                      description="default's drive on a real road (terrain all: grades, "
                                  'bumps, camber, hills) in the sprung car body'),
+    'stop_and_go': Scenario('stop_and_go', DriveProfile(steer=0.08, schedule=STOP_AND_GO),
+                            _boxes(8.0), traffic=TrafficProfile(),
+                            description='stop-and-go (40 s): starts standing, full stops of '
+                                        '2-4 s, 3-4 m/s between them, reverses at 1.5 m/s; cars '
+                                        'and people cross ahead at every stop'),
+    'creep': Scenario('creep', DriveProfile(steer=0.0, schedule=CREEP), _boxes(8.0),
+                      description='creeping (24.5 s): 3, 2 and 5 cm/s straight ahead for '
+                                  '4.5-5.5 s each, full stops of 1.5-2 s around them'),
+    'red_light': Scenario('red_light', DriveProfile(steer=0.04, schedule=RED_LIGHT),
+                          _boxes(8.0), traffic=TrafficProfile(),
+                          description='a red light (70 s): 4 m/s, a 60.5 s stop while cars and '
+                                      'a person cross ahead, 4 m/s again'),
 }
 
 
@@ -137,13 +176,15 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
     traj = mount_camera(traj, mounting, suspension, seed)
     boxes = make_obstacles(with_world_path(traj), sc.obstacles, seed, mounting) \
         if obstacles else []
+    traffic = make_traffic(traj, sc.traffic, seed, mounting.x) if obstacles else []
     renderer = Renderer(camera, mounting, make_ground_texture(seed), boxes,
                         max_range=max_range, noise_sigma=noise_sigma, seed=seed,
                         max_tilt=suspension.pitch + suspension.roll + math.radians(1.0),
                         exposure=exposure_gains(traj.t, exposure, seed) if exposure else None,
-                        supersample=supersample, terrain=ground)
+                        supersample=supersample, terrain=ground, traffic=traffic,
+                        frame_times=traj.t if traffic else None)
     return renderer, traj
 
 
-__all__ = ['SCENARIOS', 'TERRAIN_KINDS', 'VEHICLES', 'Scenario', 'TerrainError',
-           'render_scenario']
+__all__ = ['CREEP', 'RED_LIGHT', 'SCENARIOS', 'STOP_AND_GO', 'TERRAIN_KINDS', 'VEHICLES',
+           'Scenario', 'TerrainError', 'render_scenario']

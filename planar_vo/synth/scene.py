@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -159,6 +160,103 @@ class Box:
     tex_y: float = 0.0
     albedo: float = 1.0
     offset: float = 0.0
+
+
+@dataclass(frozen=True)
+class TrafficProfile:
+    """Other road users crossing in front of the vehicle while it stands still.
+
+    At every stop of at least ``min_stop`` s, cars cross the road ahead (one every
+    ``car_every`` s, alternating directions), ``ahead`` (lo, hi) m in front of the camera at
+    ``car_speed`` (lo, hi) m/s; with ``pedestrians`` one person also walks across
+    ``walk_ahead`` m in front at about 1.3 m/s. They are boxes (cars 4.4 x 1.8 x 1.5 m,
+    people 0.5 x 0.5 x 1.7 m) moving in straight lines; the ground under them is the same.
+    """
+
+    car_every: float = 3.0
+    ahead: tuple = (7.0, 14.0)
+    car_speed: tuple = (4.0, 9.0)
+    pedestrians: bool = True
+    walk_ahead: tuple = (4.0, 6.0)
+    min_stop: float = 1.0
+
+
+@dataclass(frozen=True)
+class MovingBox:
+    """A :class:`Box` moving at (``vx``, ``vy``) m/s in odom; ``box`` is where it is at ``t0``.
+
+    It is in the scene only between ``t_on`` and ``t_off`` (s), when it is far to the side.
+    """
+
+    box: Box
+    vx: float
+    vy: float
+    t0: float
+    t_on: float
+    t_off: float
+
+    def at(self, t: float) -> Box | None:
+        """The box at time ``t`` (s), None when it is not in the scene."""
+        if not self.t_on <= t <= self.t_off:
+            return None
+        return dataclasses.replace(self.box, x=self.box.x + self.vx * (t - self.t0),
+                                   y=self.box.y + self.vy * (t - self.t0))
+
+
+def stops_of(traj: Trajectory) -> list[tuple[int, int]]:
+    """(first, last) frame of every run of frames where the vehicle stands exactly still."""
+    still = np.r_[False, (np.diff(traj.x) == 0) & (np.diff(traj.y) == 0)
+                  & (np.diff(traj.yaw) == 0)]
+    # frame k is still when it did not move since k - 1; the stop starts one frame earlier
+    runs, k = [], 1
+    while k < still.size:
+        if still[k]:
+            j = k
+            while j + 1 < still.size and still[j + 1]:
+                j += 1
+            runs.append((k - 1, j))
+            k = j + 1
+        else:
+            k += 1
+    return runs
+
+
+def make_traffic(traj: Trajectory, profile: TrafficProfile | None, seed: int,
+                 camera_x: float = DEFAULT_MOUNTING.x) -> list[MovingBox]:
+    """Cars (and people) crossing ahead during every stop of ``traj`` (see TrafficProfile)."""
+    if profile is None:
+        return []
+    rng = np.random.default_rng([seed, 7])
+    movers: list[MovingBox] = []
+    for first, last in stops_of(traj):
+        t0, t1 = float(traj.t[first]), float(traj.t[last])
+        if t1 - t0 < profile.min_stop:
+            continue
+        x, y, yaw = float(traj.x[first]), float(traj.y[first]), float(traj.yaw[first])
+        fwd = np.array([math.cos(yaw), math.sin(yaw)])
+        left = np.array([-fwd[1], fwd[0]])
+        n_cars = max(1, int((t1 - t0) // profile.car_every))
+        crossings = [('car', t0 + (i + rng.uniform(0.3, 0.7)) * (t1 - t0) / n_cars)
+                     for i in range(n_cars)]
+        if profile.pedestrians and t1 - t0 >= 2.0:
+            crossings.append(('person', rng.uniform(t0 + 0.3 * (t1 - t0), t0 + 0.7 * (t1 - t0))))
+        for i, (kind, tc) in enumerate(crossings):
+            if kind == 'car':
+                ahead, speed = rng.uniform(*profile.ahead), rng.uniform(*profile.car_speed)
+                half_x, half_y, height = 2.2, 0.9, 1.5
+            else:
+                ahead, speed = rng.uniform(*profile.walk_ahead), rng.uniform(1.1, 1.5)
+                half_x, half_y, height = 0.25, 0.25, 1.7
+            sign = 1.0 if i % 2 == 0 else -1.0
+            centre = np.array([x, y]) + (camera_x + ahead) * fwd
+            velocity = sign * speed * left
+            box = Box(float(centre[0]), float(centre[1]), yaw + math.pi / 2, half_x, half_y,
+                      height, rng.uniform(0, 20), rng.uniform(0, 20), rng.uniform(0.6, 1.2),
+                      rng.uniform(-30, 40))
+            span = 40.0 / speed  # seconds from 40 m to the side to the path
+            movers.append(MovingBox(box, float(velocity[0]), float(velocity[1]), tc,
+                                    tc - span, tc + span))
+    return movers
 
 
 def make_obstacles(traj: Trajectory, profile, seed: int, mounting=None) -> list[Box]:

@@ -24,17 +24,56 @@ class DriveProfile:
 
     ``speed``: (lo, hi) m/s of the speed knots; ``steer``: largest |steering angle| of the
     knots (rad); ``knot_dt``: (lo, hi) seconds between knots. The yaw rate is
-    ``v * tan(steer) / wheelbase``.
+    ``v * tan(steer) / wheelbase``. ``schedule``: when set, a :class:`SpeedSchedule` gives the
+    speed instead of the random knots (stops, creeping, reversing); the steering stays random.
     """
 
     speed: tuple = (3.0, 8.0)
     steer: float = 0.06
     knot_dt: tuple = (2.0, 3.5)
+    schedule: SpeedSchedule | None = None
 
     @classmethod
     def of(cls, profile) -> DriveProfile:
-        """The profile with the same three fields as ``profile`` (e.g. a Scenario)."""
-        return cls(tuple(profile.speed), float(profile.steer), tuple(profile.knot_dt))
+        """The profile with the same fields as ``profile`` (e.g. a Scenario)."""
+        return cls(tuple(profile.speed), float(profile.steer), tuple(profile.knot_dt),
+                   getattr(profile, 'schedule', None))
+
+
+@dataclass(frozen=True)
+class SpeedSchedule:
+    """A speed profile of phases: ``(duration s, speed m/s)`` each, in order.
+
+    Each phase starts with a smoothstep ramp (C1) of ``ramp`` s from the previous phase's
+    speed to its own (the first phase starts at its own speed), then holds it; past the last
+    phase its speed is held. A phase of speed 0 is a full stop: once its ramp is over the
+    speed is exactly 0.0, so the integrated pose does not change by a single bit (the truth
+    holds the vehicle exactly still). Negative speeds reverse.
+    """
+
+    phases: tuple = ((5.0, 4.0),)
+    ramp: float = 1.5
+
+    @property
+    def duration(self) -> float:
+        """Seconds of all phases."""
+        return float(sum(d for d, _ in self.phases))
+
+    def speed(self, t):
+        """Speed (m/s) at times ``t`` (s)."""
+        t = np.asarray(t, np.float64)
+        starts = np.cumsum([0.0] + [d for d, _ in self.phases])[:-1]
+        targets = np.array([v for _, v in self.phases], np.float64)
+        previous = np.r_[targets[0], targets[:-1]]
+        i = np.clip(np.searchsorted(starts, t, side='right') - 1, 0, len(starts) - 1)
+        ramp = np.minimum(self.ramp, np.array([d for d, _ in self.phases])[i])
+        s = np.clip((t - starts[i]) / ramp, 0.0, 1.0)
+        s = s * s * (3.0 - 2.0 * s)
+        return np.where(s >= 1.0, targets[i], previous[i] + (targets[i] - previous[i]) * s)
+
+    def stopped(self, t) -> np.ndarray:
+        """(N,) True where the schedule holds the vehicle still at ``t``."""
+        return self.speed(t) == 0.0
 
 
 @dataclass(frozen=True)
@@ -235,6 +274,8 @@ def drive_functions(drive, frames: int, rate: float, seed: int):
     duration = (frames - 1) * (1.0 / rate)  # as make_trajectory always computed it
     speed = _smooth_profile(rng, duration, *drive.speed, drive.knot_dt)
     steer = _smooth_profile(rng, duration, 0.0, drive.steer, drive.knot_dt, True)
+    if drive.schedule is not None:
+        speed = drive.schedule.speed
     return speed, steer
 
 

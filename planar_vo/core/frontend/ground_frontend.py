@@ -19,6 +19,11 @@ from planar_vo.core.geometry.camera import CameraModel, Mounting, rays_through
 
 __all__ = ['GroundFrontEnd']
 
+# Below this predicted translation (m) the last image is not warped: nothing deforms KLT's
+# windows yet, and the warped image's resampling biased a creeping vehicle's speed by
+# +5 mm/s (3 cm/s at 20 Hz, 320x240: +16 %; -3 % without the warp).
+_PREWARP_MIN_STEP = 0.005
+
 
 class GroundFrontEnd:
     """Tracks on the ground between frames, predicted by the planar motion.
@@ -86,7 +91,8 @@ class GroundFrontEnd:
         """
         predicted = None if motion is None else self._predict_tracks(motion, mounting, model)
         warp = None
-        if predicted is not None and self.klt_prewarp and last_is_reference:
+        if (predicted is not None and self.klt_prewarp and last_is_reference
+                and np.hypot(motion[0], motion[1]) >= _PREWARP_MIN_STEP):
             if self._warp is None or self._warp.camera is not self.camera:
                 self._warp = GroundWarp(self.camera)
             warp = self._warp.pixel_map(model, motion)

@@ -196,6 +196,16 @@ class Tracker:
         self.reference = self.points.copy()
         self.reference_normalized = self.points_normalized.copy()
 
+    def restore(self, image: np.ndarray, points: np.ndarray, normalized: np.ndarray) -> None:
+        """Track ``points`` (N, 2) of ``image`` from now on, each its own reference.
+
+        A held reference frame (the vehicle stands still): every new image is matched
+        against it directly, so the tracks do not drift along a chain of images.
+        """
+        self.points = self.reference = np.asarray(points, np.float32)
+        self.points_normalized = self.reference_normalized = np.asarray(normalized)
+        self._image = image
+
     def drop(self, indices: np.ndarray) -> None:
         """Remove tracks (e.g. outliers: obstacles, mismatches) so the grid refills."""
         keep = np.ones(len(self.points), bool)

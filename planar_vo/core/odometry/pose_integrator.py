@@ -47,6 +47,18 @@ class PoseIntegrator:
         self.twist_at_stamp = self.twist_at_stamp.add(start, start + dt, motion, motion_cov)
         self.twist, self.twist_covariance = self.twist_at_stamp.estimate()
 
+    def hold(self, start: float, end: float, motion_cov: np.ndarray,
+             twist_cov: np.ndarray) -> None:
+        """The vehicle stood still over ``[start, end]``: the pose and its covariance stay.
+
+        The twist is exactly zero with ``twist_cov``.
+        The interval is a zero motion (covariance ``motion_cov``) for the twist of the next
+        measured interval, which extrapolates from it.
+        """
+        self.twist_at_stamp = self.twist_at_stamp.add(start, end, np.zeros(3), motion_cov)
+        self.twist = np.zeros(3)
+        self.twist_covariance = np.asarray(twist_cov, dtype=float).copy()
+
     def restart(self, gap: float, *, extrapolate: bool) -> None:
         """Tracking restarts; the pose keeps going but is distrusted.
 

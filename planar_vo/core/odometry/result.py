@@ -42,6 +42,8 @@ class FrameResult:
     timing_ms: dict[str, float] = field(default_factory=dict)
     inlier_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     outlier_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    stationary: bool = False  # the vehicle stands still (see planar_vo.core.odometry.standstill)
+    stationary_s: float = 0.0  # for this long, s
 
     @property
     def estimated(self) -> bool:

@@ -36,12 +36,13 @@ from planar_vo.core.estimation.ransac import (
 from planar_vo.core.frontend.ground_frontend import GroundFrontEnd
 from planar_vo.core.frontend.tracker import Tracker
 from planar_vo.core.geometry.camera import CameraModel, Mounting, rays_through
-from planar_vo.core.geometry.se2 import twist_motion
+from planar_vo.core.geometry.se2 import compose, inverse_motion, twist_motion
 from planar_vo.core.odometry.attitude_filter import AttitudeFilter, AttitudeNoise
 from planar_vo.core.odometry.frame_gate import FrameGate
 from planar_vo.core.odometry.ground_filter import LocalGroundFilter
 from planar_vo.core.odometry.pose_integrator import PoseIntegrator
 from planar_vo.core.odometry.result import FrameResult, FrameStatus
+from planar_vo.core.odometry.standstill import HeldReference, Standstill
 
 __all__ = ['VisualOdometry']
 
@@ -89,11 +90,12 @@ class VisualOdometry:
         self.min_inliers = min_inliers
         self.gate = FrameGate(max_frame_gap)
         self.integrator = PoseIntegrator()
+        self.standstill = Standstill()
         self.attitude_filter = (None if attitude is None else
                                 AttitudeFilter(attitude, mounting, self_calibrate=self_calibrate))
         self.ground = ground  # None: the ground is one plane under the wheels (the paper's)
         self.counters = {'frames': 0, 'estimated': 0, 'no_estimate': 0, 'reinitialized': 0,
-                         'time_jumps': 0, 'blank': 0, 'skipped': 0}
+                         'time_jumps': 0, 'blank': 0, 'skipped': 0, 'stationary': 0}
         self._rng = np.random.default_rng(0)
         self.configured_mounting = mounting
         self._update_geometry(camera, mounting, check_round_trip=True)
@@ -151,6 +153,7 @@ class VisualOdometry:
         """Restart at the origin with no tracks."""
         self.front.reset()
         self.integrator.reset()
+        self.standstill.reset()
         self._ref_stamp: float | None = None
         self.gate.last_stamp = None
         self._failed_frames = 0
@@ -238,6 +241,9 @@ class VisualOdometry:
             'frames without estimate': str(c['no_estimate']),
             'tracking restarts': str(c['reinitialized']), 'time jumps': str(c['time_jumps']),
             'blank frames': str(c['blank']), 'frames skipped': str(c['skipped']),
+            'motion state': 'stationary' if self.standstill.stationary else 'moving',
+            'stationary for (s)': f'{self.standstill.seconds(self.gate.last_stamp):.2f}',
+            'frames stationary': str(c['stationary']),
             'camera mounting (x y z m, roll pitch yaw rad)': (
                 f'{m.x:.3f} {m.y:.3f} {m.height:.3f}, {m.roll:.4f} {m.pitch:.4f} {m.yaw:.4f}'),
             'camera': (f'{self.camera.width}x{self.camera.height}, fx {self.camera.K[0, 0]:.1f}, '
@@ -273,8 +279,8 @@ class VisualOdometry:
         changed in place, are copied.
         """
         tilt = self._tilt_filter
-        parts = (self.front, self.front.tracker, self.gate, self.integrator, tilt,
-                 None if tilt is None else tilt.calibrator)
+        parts = (self.front, self.front.tracker, self.gate, self.integrator, self.standstill,
+                 tilt, None if tilt is None else tilt.calibrator)
         return (dict(vars(self)), dict(self.counters),
                 [(part, copy.copy(vars(part))) for part in parts if part is not None])
 
@@ -308,13 +314,25 @@ class VisualOdometry:
             return self._result(stamp, FrameStatus.FIRST, t0)
         mounting, model = self._current_geometry()
         dt = stamp - previous
-        held = twist_motion(self.twist, dt) if self.integrator.twist_known else None
-        motion = self.front.predicted_motion(gray, dt, model, held)
-        self.front.track(gray, motion, mounting, model,
-                         last_is_reference=self._ref_stamp == previous)
+        still = self.standstill.held
+        if still is not None:
+            # Standing still: every image is matched against the held reference directly.
+            self.tracker.restore(still.image, still.points, still.normalized)
+            self.front.track(gray, np.zeros(3), mounting, model, last_is_reference=False)
+            reference_image = None
+        else:
+            reference_image = self.tracker.last_image if self._ref_stamp == previous else None
+            held = twist_motion(self.twist, dt) if self.integrator.twist_known else None
+            motion = self.front.predicted_motion(gray, dt, model, held)
+            self.front.track(gray, motion, mounting, model,
+                             last_is_reference=self._ref_stamp == previous)
         t_track = time.perf_counter()
-        result = self._estimate(stamp, t0)
+        result = self._estimate(stamp, t0, previous, reference_image)
         result.timing_ms['track'] = 1e3 * (t_track - t0)
+        if self.standstill.stationary:  # the held tracks are the reference: nothing to add
+            result.tracks = len(self.tracker)
+            result.timing_ms['total'] = 1e3 * (time.perf_counter() - t0)
+            return result
         self.front.detect(is_reference=result.status in (FrameStatus.OK,
                                                          FrameStatus.REINITIALIZED))
         result.tracks = len(self.tracker)
@@ -335,7 +353,13 @@ class VisualOdometry:
         return self._tilt_filter.hypothesis_threshold(
             self.inlier_threshold, self._model.focal_px, stamp - self._ref_stamp)
 
-    def _estimate(self, stamp: float, t0: float) -> FrameResult:
+    def _estimate(self, stamp: float, t0: float, previous: float,
+                  reference_image: np.ndarray | None) -> FrameResult:
+        """Measure the motion since the reference frame and compose it (or hold still).
+
+        ``reference_image``: the reference frame's image when it is the previous frame (a
+        stop may start there), else None.
+        """
         idx, ref_px, cur_px = self.tracker.correspondences()
         m2 = self.tracker.points_normalized[idx]
         rays1 = rays_through(self.tracker.reference_normalized[idx])
@@ -382,8 +406,29 @@ class VisualOdometry:
                                 message=str(err), pose_ms=pose_ms)
         pose_ms = 1e3 * (time.perf_counter() - t_pose)
         self._failed_frames = 0
-        self.integrator.add(self._ref_stamp, stamp - self._ref_stamp, est.motion,
-                            est.covariance)
+        stats = dict(correspondences=n, inliers=int(np.count_nonzero(est.inliers)),
+                     hypotheses=est.hypotheses, rms_px=est.rms_px, pose_ms=pose_ms)
+        start, step = self._ref_stamp, est.motion
+        if self.standstill.stationary:
+            if not self.standstill.moved(est.motion, est.covariance):
+                return self._hold_still(stamp, t0, previous, est, stats)
+            # Pulling away. The motion since the reference at the last frame found still
+            # (below the test, usually nothing) is composed first, then the last interval's:
+            # the pose gets all of it, the twist the last interval's.
+            (still, still_cov), held = self.standstill.last_motion, self.standstill.held
+            self.standstill.reset()
+            if previous > held.stamp:
+                self.integrator.add(held.stamp, previous - held.stamp, still, still_cov)
+            start, step = previous, relative_motion(still, est.motion)
+        elif (reference_image is not None and self._ref_stamp == previous
+              and self.standstill.quiet(est.motion, est.covariance)):
+            # A stop: the previous frame stays the reference, this frame's motion is none.
+            rows = idx[ok][est.inliers]
+            self.standstill.enter(HeldReference(
+                reference_image, self.tracker.reference[rows].copy(),
+                self.tracker.reference_normalized[rows].copy(), previous), stamp)
+            return self._hold_still(stamp, t0, previous, est, stats)
+        self.integrator.add(start, stamp - start, step, est.covariance)
         self._ref_stamp = stamp
         # Tracks far off the motion are obstacles or mismatches: free their grid cells.
         errors = transfer_errors(est.motion, p1[ok], m2[ok], model)
@@ -395,6 +440,15 @@ class VisualOdometry:
             inliers=int(np.count_nonzero(est.inliers)), hypotheses=est.hypotheses,
             rms_px=est.rms_px, pose_ms=pose_ms,
             inlier_points=used[est.inliers], outlier_points=used[~est.inliers])
+
+    def _hold_still(self, stamp: float, t0: float, previous: float, est: RansacResult,
+                    stats: dict) -> FrameResult:
+        """A frame of a stop: the pose held, the twist exactly zero, the reference kept."""
+        self.standstill.still(stamp, est.motion, est.covariance)
+        self.integrator.hold(previous, stamp, est.covariance, self.standstill.twist_covariance())
+        self.counters['estimated'] += 1
+        self.counters['stationary'] += 1
+        return self._result(stamp, FrameStatus.OK, t0, **stats)
 
     def _require_inliers(self, inliers: np.ndarray) -> None:
         """Raise PoseEstimationError when fewer than ``min_inliers`` fit."""
@@ -430,6 +484,7 @@ class VisualOdometry:
         self.counters['reinitialized'] += 1
         gap = 0.0 if self._ref_stamp is None else max(stamp - self._ref_stamp, 0.0)
         self.integrator.restart(gap, extrapolate=extrapolate)
+        self.standstill.reset()
         self._failed_frames = 0
         self.tracker.reset()
         if self._tilt_filter is not None:
@@ -444,7 +499,10 @@ class VisualOdometry:
                 outlier_points: np.ndarray | None = None) -> FrameResult:
         unseen = None
         if status != FrameStatus.OK and self._ref_stamp is not None:
-            unseen = max(stamp - self._ref_stamp, 0.0)
+            # Standing still, the pose held was right at the last frame found still.
+            since = (self.standstill.last_still if self.standstill.stationary
+                     else self._ref_stamp)
+            unseen = max(stamp - since, 0.0)
         pose, cov, twist, twist_cov = self.integrator.reported(unseen)
         return FrameResult(
             stamp=stamp, pose=pose, pose_covariance=cov, twist=twist,
@@ -453,8 +511,15 @@ class VisualOdometry:
             hypotheses=hypotheses, rms_px=rms_px,
             timing_ms={'pose': pose_ms, 'total': 1e3 * (time.perf_counter() - t0)},
             inlier_points=inlier_points if inlier_points is not None else np.zeros((0, 2)),
-            outlier_points=outlier_points if outlier_points is not None else np.zeros((0, 2)))
+            outlier_points=outlier_points if outlier_points is not None else np.zeros((0, 2)),
+            stationary=self.standstill.stationary,
+            stationary_s=self.standstill.seconds(stamp))
 
 
 def _with_size(camera: CameraModel, shape: tuple[int, int]) -> CameraModel:
     return CameraModel(camera.K, camera.D, camera.distortion_model, shape[1], shape[0])
+
+
+def relative_motion(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The motion from the end of ``a`` to the end of ``b`` (both from the same start)."""
+    return compose(inverse_motion(a), np.zeros((3, 3)), b, np.zeros((3, 3)))[0]
