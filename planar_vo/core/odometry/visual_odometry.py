@@ -375,14 +375,18 @@ class VisualOdometry:
         t_pose = time.perf_counter()
         try:
             if self.ransac_method == 'opencv_homography':
-                est = self._estimate_with_opencv(p1[ok], m2[ok], model)
+                est = planar = self._estimate_with_opencv(p1[ok], m2[ok], model)
             else:
                 est = estimate_motion(
                     p1[ok], p2[ok], m2[ok], model, method=self.ransac_method,
                     threshold_px=self._hypothesis_threshold(stamp),
                     confidence=self.ransac_confidence,
                     circular_refine=self.circular_refine, rng=self._rng)
+                planar = est
                 if self._tilt_filter is not None:
+                    # The standstill test's planar motion, at the inlier threshold (the
+                    # hypotheses' is wider here; the test's thresholds are the rigid model's).
+                    planar = self._planar_at_inlier_threshold(est, p1[ok], m2[ok], model)
                     est, calibrated = self._tilt_filter.refine(
                         est, rays1[ok], m2[ok], self.mounting, model,
                         dt=stamp - self._ref_stamp, inlier_threshold=self.inlier_threshold,
@@ -410,7 +414,7 @@ class VisualOdometry:
                      hypotheses=est.hypotheses, rms_px=est.rms_px, pose_ms=pose_ms)
         start, step = self._ref_stamp, est.motion
         if self.standstill.stationary:
-            if not self.standstill.moved(est.motion, est.covariance):
+            if not self.standstill.moved(planar.motion, planar.covariance):
                 return self._hold_still(stamp, t0, previous, est, stats)
             # Pulling away. The motion since the reference at the last frame found still
             # (below the test, usually nothing) is composed first, then the last interval's:
@@ -421,7 +425,7 @@ class VisualOdometry:
                 self.integrator.add(held.stamp, previous - held.stamp, still, still_cov)
             start, step = previous, relative_motion(still, est.motion)
         elif (reference_image is not None and self._ref_stamp == previous
-              and self.standstill.quiet(est.motion, est.covariance)):
+              and self.standstill.quiet(planar.motion, planar.covariance)):
             # A stop: the previous frame stays the reference, this frame's motion is none.
             rows = idx[ok][est.inliers]
             self.standstill.enter(HeldReference(
@@ -440,6 +444,16 @@ class VisualOdometry:
             inliers=int(np.count_nonzero(est.inliers)), hypotheses=est.hypotheses,
             rms_px=est.rms_px, pose_ms=pose_ms,
             inlier_points=used[est.inliers], outlier_points=used[~est.inliers])
+
+    def _planar_at_inlier_threshold(self, est: RansacResult, p1: np.ndarray, m2: np.ndarray,
+                                     model: TransferModel) -> RansacResult:
+        """``est`` refined in 3 DoF with the inlier threshold (for the standstill test)."""
+        try:
+            motion, covariance, rms, inliers = refine_motion(
+                est.motion, p1, m2, model, threshold_px=self.inlier_threshold)
+        except PoseEstimationError:  # a jolt: no rigid motion fits, so not a stop either
+            return est
+        return RansacResult(motion, covariance, inliers, est.hypotheses, rms)
 
     def _hold_still(self, stamp: float, t0: float, previous: float, est: RansacResult,
                     stats: dict) -> FrameResult:
