@@ -142,7 +142,8 @@ def sprung_body_params(scenario):
     body, mount = sc.suspension, sc.mounting
     if body == synth.RIGID:
         return None
-    return {'estimate_attitude': True, 'self_calibrate': False, 'max_features': 700,
+    return {'ground_model': 'plane', 'estimate_attitude': True, 'self_calibrate': False,
+            'max_features': 700,
             'body_pivot_below_camera': mount.height - body.pivot_z,
             'body_pivot_behind_camera': mount.x - body.pivot_x}
 

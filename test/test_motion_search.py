@@ -81,7 +81,8 @@ def test_first_pair_at_10_hz_keeps_its_tracks(car_at_10_hz):
     runs = {}
     for search in (True, False):
         vo = VisualOdometry.from_params(synth_camera_model(renderer), _params(
-            renderer, estimate_attitude=True, self_calibrate=False, max_features=700,
+            renderer, ground_model='plane', estimate_attitude=True, self_calibrate=False,
+                max_features=700,
             klt_first_search=search))
         vo.process(images[0], 0.0)
         runs[search] = vo.process(images[1], 0.1)

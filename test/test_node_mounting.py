@@ -28,7 +28,8 @@ def test_diagnostics_show_the_learned_mounting_and_the_node_says_what_to_set(
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import CameraInfo, Image
     result, bag, params = miscalibrated
-    node = NodeProcess(ros_env, '--params-file', str(params), '-p', 'estimate_attitude:=true',
+    node = NodeProcess(ros_env, '--params-file', str(params), '-p', 'ground_model:=plane', '-p',
+                       'estimate_attitude:=true',
                        '-p', 'image_reliability:=reliable')
     ros = Ros()
     try:

@@ -195,7 +195,11 @@ def refine_on_local_ground(
         params = params + step
         if np.max(np.abs(step)) < 1e-7 and not changed and threshold == threshold_px:
             break
-    covariance = np.linalg.inv(H)
+    # The weighted fit's covariance, the sandwich of an M-estimator: the weights lower the
+    # information the data give, and lower the noise that reaches the estimate as much.
+    bread = np.linalg.inv(H)
+    J_ww = (J * weights * weights).reshape(_N, -1)
+    covariance = bread @ (J_ww @ J.reshape(_N, -1).T / sigma2 + info) @ bread
     rms = focal_px * float(np.sqrt(squared[inliers].mean()))
     return LocalGroundResult(params[:3].copy(), covariance[:3, :3].copy(), params[3:6].copy(),
                              params[6:].copy(), covariance[6:, 6:].copy(), inliers, weights, rms)
