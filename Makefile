@@ -45,6 +45,11 @@ bench: $(STAMP)
 	test -d $(BENCH_752) || $(VENV)/bin/planar_vo_synth $(BENCH_752) --width 752 --height 480 \
 		--rate 15 --frames 90 --noise 1.0 --quiet
 	$(VENV)/bin/planar_vo_bench $(BENCH_752)
+	# A rolling-shutter camera (30 ms readout): the same drive, the readout modelled.
+	test -d $(BENCH_752)_rs || $(VENV)/bin/planar_vo_synth $(BENCH_752)_rs --width 752 \
+		--height 480 --rate 15 --frames 90 --noise 1.0 --rolling-shutter 0.03 --quiet
+	printf 'planar_vo:\n  ros__parameters:\n    rolling_shutter_readout: 0.03\n' > out/rs_params.yaml
+	$(VENV)/bin/planar_vo_bench $(BENCH_752)_rs --params out/rs_params.yaml
 
 # A long run over DDS (about 6 minutes, not part of `make test`): 20 000 frames at 60 Hz, the
 # bag played forward and backward; prints frames answered and the node's resident memory.

@@ -88,12 +88,13 @@ def synth_camera_model(renderer):
 
 def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, camera=None,
                  suspension=None, mounting=None, configured=None, exposure=0.0, rate=30.0,
-                 twist=False, supersample=1):
+                 twist=False, supersample=1, rolling_shutter=None):
     """Render a synthetic scenario and run the odometry core on it (no bag, no ROS).
 
     The images are rendered with ``mounting`` (default: the scenario's) on ``suspension``
     (default: the scenario's body) with auto-exposure changes within +-``exposure``, with
-    ``supersample`` x ``supersample`` rays averaged per pixel. The
+    ``supersample`` x ``supersample`` rays averaged per pixel, and with ``rolling_shutter``
+    (a ``synth.shutter.RollingShutter``) each row at its own time. The
     odometry is configured with ``configured`` (a mounting, or a ``synth.MountingError`` off
     the true one; default: the true one); ``overrides`` win. ``corrupt(k, image, stamp)``
     may replace frame k (image, stamp) to inject bad input. Frames are ``rate`` Hz apart;
@@ -107,7 +108,8 @@ def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, came
 
     renderer, traj = synth.render_scenario(scenario, frames, seed, rate=rate, camera=camera,
                                            mounting=mounting, suspension=suspension,
-                                           exposure=exposure, supersample=supersample)
+                                           exposure=exposure, supersample=supersample,
+                                           rolling_shutter=rolling_shutter)
     if configured is None or isinstance(configured, synth.MountingError):
         configured = (configured or synth.MountingError()).apply(renderer.mounting)
     mount = configured

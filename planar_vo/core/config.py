@@ -163,6 +163,21 @@ SCHEMA: tuple[Param, ...] = (
     Param('self_calibrate', True, 'Learn the static camera_pitch, camera_roll, camera_yaw and '
           'camera_x from the drive, starting from the configured values (with ground_model '
           'local, or plane with estimate_attitude).'),
+    # Rolling-shutter cameras (DESIGN.md section 7).
+    Param('rolling_shutter_readout', 0.0, 'Rolling shutter: time from reading the first image '
+          'row to the last, s; 0 is a global shutter. Most webcams and the Raspberry Pi '
+          'cameras read 10-35 ms: the datasheet gives it as the line time (row period) times '
+          'the rows read (e.g. 1/frame rate minus the vertical blanking), or learn it from a '
+          'drive with turns (learn_rolling_shutter, planar_vo_calibrate). Each track is then '
+          'moved to its own row\'s time (the frame motion stretched by the twist).', 0.0, 0.2),
+    Param('rolling_shutter_stamp', 'middle', 'Where in the readout the driver stamps the '
+          "image: 'start' (first row), 'middle' or 'end' (last row); the published pose is "
+          'the pose of that row. Only matters with rolling_shutter_readout over 0.',
+          choices=('start', 'middle', 'end')),
+    Param('learn_rolling_shutter', False, 'Learn rolling_shutter_readout from the drive '
+          '(turns and speed tell it), starting from the configured value: reported with its '
+          'standard deviation in /diagnostics, a warning once when it differs from the '
+          'configured value by over 2 ms, and used once known to 1 ms.'),
     Param('max_frame_gap', 1.0, 'A larger gap between image stamps, or one backwards, restarts '
           'tracking (the pose is kept, its covariance inflated), s.', 0.01, 3600.0),
 )

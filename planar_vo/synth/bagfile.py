@@ -16,6 +16,7 @@ from planar_vo.synth.lens import SynthCamera
 from planar_vo.synth.mount import CameraMount, MountingError, params_yaml
 from planar_vo.synth.ride import rotation_quaternion
 from planar_vo.synth.scenarios import SCENARIOS, render_scenario
+from planar_vo.synth.shutter import RollingShutter
 from planar_vo.synth.terrain import Terrain
 from planar_vo.synth.vehicle import RIGID, Suspension, Trajectory
 
@@ -124,6 +125,7 @@ class SynthResult:
     seconds: float = 0.0
     terrain: Terrain | None = None
     vehicle: str = 'car'
+    rolling_shutter: RollingShutter | None = None
 
 
 def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: int = 0, *,
@@ -134,6 +136,7 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                  params_out=None, configured_error: MountingError | None = None,
                  exposure: float = 0.0, supersample: int = 1,
                  terrain: str | Terrain | None = None, vehicle: str = 'car',
+                 rolling_shutter: RollingShutter | None = None,
                  progress: bool = False) -> SynthResult:
     """Render a scenario and write the rosbag2 bag (MCAP, zstd chunks) at ``out_path``.
 
@@ -142,7 +145,9 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
     gets it plus ``configured_error`` (the mounting a user would have configured, to test
     calibration). On terrain (not flat) the bag also has ``/ground_truth/pose3d`` and its
     metadata.yaml records the terrain and the vehicle (``custom_data``, key
-    ``planar_vo_synth``, a JSON object); so does a comment in ``params_out``.
+    ``planar_vo_synth``, a JSON object); so does a comment in ``params_out``. A
+    ``rolling_shutter`` with a readout over 0 renders each row at its own time (the stamp at
+    its ``stamp`` convention) and is recorded the same way (key ``rolling_shutter``).
     """
     from planar_vo.io.bag import BagWriter, typestore
 
@@ -153,12 +158,18 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                                      noise_sigma=noise_sigma, max_range=max_range,
                                      obstacles=obstacles, exposure=exposure,
                                      supersample=supersample, terrain=terrain,
-                                     vehicle=vehicle)
+                                     vehicle=vehicle, rolling_shutter=rolling_shutter)
     ground = renderer.terrain
-    record = None if ground.flat else json.dumps(
+    shutter = None if rolling_shutter is None or rolling_shutter.global_shutter \
+        else rolling_shutter
+    record = None if ground.flat else \
         {'scenario': scenario, 'vehicle': vehicle, 'terrain': ground.describe(),
          'seed': seed, 'truth': {ODOM_TOPIC: 'planar, distance along the surface',
-                                 POSE3D_TOPIC: f'3D base_link pose in {WORLD_FRAME}'}})
+                                 POSE3D_TOPIC: f'3D base_link pose in {WORLD_FRAME}'}}
+    if shutter is not None:  # global-shutter bags stay byte for byte those of before
+        record = (record or {'scenario': scenario, 'seed': seed}) | {
+            'rolling_shutter': shutter.describe()}
+    record = None if record is None else json.dumps(record)
     mounting = renderer.mounting
     configured = (configured_error or MountingError()).apply(mounting)
     suspension = SCENARIOS[scenario].suspension if suspension is None else suspension
@@ -171,7 +182,8 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
         bag.add_topic(INFO_TOPIC, 'sensor_msgs/msg/CameraInfo')
         bag.add_topic(ODOM_TOPIC, 'nav_msgs/msg/Odometry')
         if record is not None:
-            bag.add_topic(POSE3D_TOPIC, 'nav_msgs/msg/Odometry')
+            if not ground.flat:
+                bag.add_topic(POSE3D_TOPIC, 'nav_msgs/msg/Odometry')
             # io.bag.BagWriter has no custom_data option yet: its rosbags Writer has
             bag._writer.set_custom_data('planar_vo_synth', record)
         for k in range(frames):
@@ -184,7 +196,7 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                       camera_info_msg(ts, camera, ns))
             bag.write(img_topic, img_type, ns, msg)
             bag.write(ODOM_TOPIC, 'nav_msgs/msg/Odometry', ns, odometry_msg(ts, traj, k, ns))
-            if record is not None:
+            if not ground.flat:
                 bag.write(POSE3D_TOPIC, 'nav_msgs/msg/Odometry', ns, pose3d_msg(ts, traj, k, ns))
             bar.update()
     if params_out is not None:
@@ -198,4 +210,4 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
         Path(params_out).write_text(text)
     return SynthResult(Path(out_path), scenario, frames, rate, seed, camera, mounting, traj,
                        suspension, configured, exposure, len(renderer.boxes),
-                       time.monotonic() - t0, ground, vehicle)
+                       time.monotonic() - t0, ground, vehicle, shutter)

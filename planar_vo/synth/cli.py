@@ -13,6 +13,7 @@ from planar_vo.synth.bagfile import generate_bag
 from planar_vo.synth.lens import DISTORTION_DEFAULTS, SynthCamera
 from planar_vo.synth.mount import MountingError
 from planar_vo.synth.scenarios import SCENARIOS, VEHICLES
+from planar_vo.synth.shutter import STAMPS, RollingShutter
 from planar_vo.synth.terrain import TERRAIN_KINDS
 from planar_vo.synth.vehicle import Suspension
 from planar_vo.tools.cli import (
@@ -116,6 +117,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--supersample', type=positive_int, default=1, metavar='S',
                    help='S x S rays per pixel, averaged, as a sensor integrates its pixel '
                         '(default 1: one ray per pixel, mip-mapped; 2 costs about 4x the time)')
+    p.add_argument('--rolling-shutter', type=non_negative_float, default=0.0,
+                   metavar='SECONDS',
+                   help='rolling-shutter readout: row r of H exposed at stamp + (r/H - c) '
+                        'SECONDS, each row rendered from the pose at its own time (flat ground; '
+                        'default 0: a global shutter). Recorded in the bag metadata')
+    p.add_argument('--rolling-shutter-stamp', choices=list(STAMPS), default='middle',
+                   help='where the stamp is in the readout: start (c = 0), middle (c = 0.5, '
+                        'default) or end (c = 1)')
     p.add_argument('--max-range', type=positive_float, default=60.0,
                    help='ground beyond this distance (m) is haze/sky (default 60)')
     p.add_argument('--no-obstacles', action='store_true', help='no boxes')
@@ -165,6 +174,11 @@ def main(argv=None) -> int:
         parser.error('--bounce must be at most half the camera height')
     if args.exposure > 0.5:
         parser.error('--exposure must be at most 0.5 (a gain within +-50 %)')
+    if args.rolling_shutter > 0.2:
+        parser.error('--rolling-shutter must be at most 0.2 s')
+    terrain = args.terrain or SCENARIOS[args.scenario].terrain
+    if args.rolling_shutter and terrain != 'flat':
+        parser.error('--rolling-shutter is rendered on flat ground only')
     if args.configured_error and not args.params_out:
         parser.error('--configured-error needs --params-out (it only changes that file)')
     if args.configured_error and args.configured_error.apply(mounting).height <= 0:
@@ -191,10 +205,15 @@ def main(argv=None) -> int:
                            params_out=args.params_out, configured_error=args.configured_error,
                            exposure=args.exposure, supersample=args.supersample,
                            terrain=args.terrain, vehicle=args.vehicle,
+                           rolling_shutter=RollingShutter(args.rolling_shutter,
+                                                          args.rolling_shutter_stamp),
                            progress=not args.quiet)
         if not args.quiet:
             ground = '' if res.terrain.flat else \
                 f', terrain {res.terrain.describe()["kind"]}, {res.vehicle}'
+            if res.rolling_shutter is not None:
+                ground += (f', rolling shutter {1e3 * res.rolling_shutter.readout:.1f} ms '
+                           f'(stamp at the {res.rolling_shutter.stamp})')
             print(f'{PROG}: wrote {res.path} ({res.frames} frames, scenario {res.scenario}, '
                   f'path {res.trajectory.length:.1f} m, {res.obstacles} boxes{ground}, '
                   f'{res.seconds:.1f} s)', file=sys.stderr)

@@ -148,6 +148,13 @@ class Renderer:
         self._c_l0 = c0[order]
         self._c_frac = (cand_level[order] - c0[order]).astype(np.float32)
         self._c_rays = np.ascontiguousarray(self._unit_rays[:, self._c_idx])
+        # A rolling shutter (planar_vo.synth.shutter): the pose of every row of every frame.
+        self.rows = None
+
+    def _sensor_row(self, index: np.ndarray) -> np.ndarray:
+        """The sensor row of rendered rays ``index`` (flat, supersampled grid)."""
+        s = self.supersample
+        return index // (self.camera.width * s) // s
 
     @staticmethod
     def _sky(up: np.ndarray) -> np.ndarray:
@@ -216,7 +223,12 @@ class Renderer:
         return self._finish(img, k)
 
     def render_frame(self, traj: Trajectory, k: int) -> np.ndarray:
-        """Frame k of ``traj``: its base_link pose and, when set, its true camera pose."""
+        """Frame k of ``traj``: its base_link pose and, when set, its true camera pose.
+
+        With :attr:`rows` set (a rolling shutter) each row from the pose at its own time.
+        """
+        if self.rows is not None:
+            return self.render_rows(k)
         if traj.pose3d is not None:
             rot, pos = traj.pose3d.rotation[k], traj.pose3d.position[k]
             if traj.camera is None:
@@ -270,6 +282,62 @@ class Renderer:
             depth = np.full(img.shape[0], np.inf)
             depth[self._c_idx[ground]] = t[ground]
             self._render_boxes(img, x, y, yaw, position, dirs, depth, sky, boxes=boxes)
+        return self._finish(img, k)
+
+    def render_rows(self, k: int) -> np.ndarray:
+        """Frame k with a rolling shutter: every row from its own pose (:attr:`rows`)."""
+        rows = self.rows
+        xr, yr, yawr = rows.x[k], rows.y[k], rows.yaw[k]
+        s, width = self.supersample, self.camera.width * self.supersample
+        if rows.camera_position is None:  # rigid mount: the ground geometry is precomputed
+            img = self.sky.copy()
+            r = self._sensor_row(self.g_idx)
+            c, sn = np.cos(yawr)[r], np.sin(yawr)[r]
+            gx = xr[r] + c * self.g_pts[:, 0] - sn * self.g_pts[:, 1]
+            gy = yr[r] + sn * self.g_pts[:, 0] + c * self.g_pts[:, 1]
+            val = self.texture.sample_sorted(gx, gy, self.g_l0, self.g_frac)
+            behind = img[self.g_idx]
+            img[self.g_idx] = val + (behind - val) * self.g_fog
+            depth, dirs, sky = self.t_ground.copy(), self.dirs, self.sky
+            positions = np.broadcast_to(self.origin, (len(xr), 3))
+        else:
+            rotation = np.einsum('rij,jk->rik', rows.camera_rotation[k],
+                                 BODY_FROM_OPTICAL).astype(np.float32)
+            positions = rows.camera_position[k]
+            if np.any(positions[:, 2] <= 0):
+                raise ValueError('the camera must stay above the ground')
+            n = self._unit_rays.shape[1]
+            dirs = _rotate_rows(rotation, self._sensor_row(np.arange(n)), self._unit_rays)
+            sky = self._sky_fast(dirs[2])
+            img = sky.copy()
+            r = self._sensor_row(self._c_idx)
+            d = _rotate_rows(rotation, r, self._c_rays)
+            depression = -d[2]
+            down = depression > 1e-6
+            pos = positions.astype(np.float32)[r]
+            t = pos[:, 2] / np.where(down, depression, np.float32(1.0))
+            dist = t * np.hypot(d[0], d[1])
+            ground = down & (dist < self.max_range)
+            t[~ground] = 0.0
+            bx = pos[:, 0] + t * d[0]
+            by = pos[:, 1] + t * d[1]
+            period = self.texture.texel * self.texture.sizes[0]
+            # odom position wrapped to the texture's period in float64, then float32 offsets
+            c, sn = np.cos(yawr)[r].astype(np.float32), np.sin(yawr)[r].astype(np.float32)
+            ox, oy = (xr % period)[r].astype(np.float32), (yr % period)[r].astype(np.float32)
+            val = self.texture.sample_sorted(ox + c * bx - sn * by, oy + sn * bx + c * by,
+                                             self._c_l0, self._c_frac)
+            fog = np.where(ground, self._haze(dist), np.float32(1.0))
+            behind = img[self._c_idx]
+            img[self._c_idx] = val + (behind - val) * fog
+            depth = np.full(img.shape[0], np.inf)
+            depth[self._c_idx[ground]] = t[ground]
+        if self.boxes:  # row by row, each seen from its own pose
+            for rho in range(self.camera.height * s):
+                row = rho // s
+                sl = slice(rho * width, (rho + 1) * width)
+                self._render_boxes(img[sl], xr[row], yr[row], yawr[row], positions[row],
+                                   dirs[:, sl], depth[sl], sky[sl])
         return self._finish(img, k)
 
     def render_world(self, k: int, position: np.ndarray,
@@ -415,6 +483,13 @@ class Renderer:
             fog = 0.12 * (1 - np.exp(-rr / 30.0)) + 0.88 * fs * fs * (3 - 2 * fs)
             img[idx] = val + (img[idx] * 0 + sky[idx] - val) * fog
             depth[idx] = tn
+
+
+def _rotate_rows(rotations: np.ndarray, rows: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """``rotations[rows[n]] @ vectors[:, n]`` for every n: (3, N) float32."""
+    r = rotations[rows]
+    return np.stack([r[:, i, 0] * vectors[0] + r[:, i, 1] * vectors[1]
+                     + r[:, i, 2] * vectors[2] for i in range(3)])
 
 
 def _subpixel_camera(camera: SynthCamera, s: int) -> SynthCamera:

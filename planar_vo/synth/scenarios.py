@@ -25,6 +25,7 @@ from planar_vo.synth.scene import (
     make_obstacles,
     make_traffic,
 )
+from planar_vo.synth.shutter import RollingShutter, row_poses
 from planar_vo.synth.terrain import TERRAIN_KINDS, Terrain, TerrainError, make_terrain
 from planar_vo.synth.vehicle import (
     RIGID,
@@ -142,7 +143,7 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
                     suspension: Suspension | None = None, noise_sigma: float = 1.5,
                     max_range: float = 60.0, obstacles: bool = True, exposure: float = 0.0,
                     supersample: int = 1, terrain: str | Terrain | None = None,
-                    vehicle: str = 'car'):
+                    vehicle: str = 'car', rolling_shutter: RollingShutter | None = None):
     """Build the scene; return ``(renderer, trajectory)``.
 
     ``terrain``: a key of :data:`TERRAIN_KINDS` or a :class:`Terrain` (default: the
@@ -158,6 +159,10 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
     ``supersample``: rays per pixel side, averaged (see :class:`Renderer`).
     ``renderer.render_frame(traj, k)`` is frame k of the bag; ``traj.camera`` holds the true
     camera pose of every frame.
+
+    ``rolling_shutter`` (a :class:`~planar_vo.synth.shutter.RollingShutter` with a readout
+    over 0) renders each row from the pose at its own time (``renderer.rows``, flat ground
+    only); the trajectory stays the truth at the image stamps.
     """
     if not 0.0 <= exposure < 1.0:
         raise ValueError(f'exposure must be in [0, 1), got {exposure}')
@@ -183,6 +188,11 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
                         exposure=exposure_gains(traj.t, exposure, seed) if exposure else None,
                         supersample=supersample, terrain=ground, traffic=traffic,
                         frame_times=traj.t if traffic else None)
+    if rolling_shutter is not None and not rolling_shutter.global_shutter:
+        if not ground.flat:
+            raise ValueError('a rolling shutter is rendered on flat ground only (for now)')
+        renderer.rows = row_poses(sc.drive, traj, rate, seed, rolling_shutter,
+                                  renderer.camera.height, mounting, suspension)
     return renderer, traj
 
 

@@ -5,7 +5,8 @@ Runs the odometry over the bag with self-calibration on (see
 then writes the parameter file back with the learned ``camera_pitch``, ``camera_roll``,
 ``camera_yaw`` and ``camera_x``. With ``--known-distance`` (the drive's true length) a second
 pass, from the calibrated mounting, measures the path and scales ``camera_height`` to it:
-the one thing vision alone cannot tell.
+the one thing vision alone cannot tell. With ``--rolling-shutter`` the camera's readout
+time (``rolling_shutter_readout``) is learned over the same drive and written too.
 """
 
 from __future__ import annotations
@@ -40,14 +41,19 @@ PROG = 'planar_vo_calibrate'
 _ANGLES = ('camera_pitch', 'camera_roll', 'camera_yaw')
 # A value whose standard deviation is above this was not determined by the drive.
 _UNDETERMINED = {'camera_pitch': math.radians(1.0), 'camera_roll': math.radians(1.0),
-                 'camera_yaw': math.radians(1.0), 'camera_x': 0.2}
+                 'camera_yaw': math.radians(1.0), 'camera_x': 0.2,
+                 'rolling_shutter_readout': 0.003}
 
 
 def calibrate(bag: str | Path, params: dict[str, Any], *, image_topic: str | None = None,
               camera_info_topic: str | None = None, known_distance: float | None = None,
-              progress: bool = False) -> dict[str, Any]:
-    """Estimate the mounting from ``bag``; returns values, deviations and what was kept."""
-    params = dict(params, estimate_attitude=True, self_calibrate=True)
+              rolling_shutter: bool = False, progress: bool = False) -> dict[str, Any]:
+    """Estimate the mounting from ``bag``; returns values, deviations and what was kept.
+
+    With ``rolling_shutter`` also the readout (s), learned from the configured one.
+    """
+    params = dict(params, estimate_attitude=True, self_calibrate=True,
+                  learn_rolling_shutter=rolling_shutter)
     first = replay(bag, params, image_topic=image_topic, camera_info_topic=camera_info_topic,
                    progress=progress)
     estimate = first.mounting
@@ -57,6 +63,15 @@ def calibrate(bag: str | Path, params: dict[str, Any], *, image_topic: str | Non
     values, kept = _determined(estimate, params)
     result: dict[str, Any] = {'values': values, 'std': dict(estimate.std), 'kept': kept,
                               'seconds': estimate.seconds}
+    if rolling_shutter:
+        readout = first.readout
+        if readout is not None and readout.std <= _UNDETERMINED['rolling_shutter_readout']:
+            values['rolling_shutter_readout'] = float(readout.readout)
+        else:
+            values['rolling_shutter_readout'] = float(params['rolling_shutter_readout'])
+            kept.append('rolling_shutter_readout')
+        result['std']['rolling_shutter_readout'] = (
+            math.inf if readout is None else float(readout.std))
     if known_distance is not None:
         second = replay(bag, dict(params, **values), image_topic=image_topic,
                         camera_info_topic=camera_info_topic, progress=progress)
@@ -105,6 +120,9 @@ def _parser() -> Parser:
     add_topic_arguments(p)
     p.add_argument('--known-distance', type=positive_float, metavar='METRES',
                    help='true length of the drive: also calibrates camera_height')
+    p.add_argument('--rolling-shutter', action='store_true',
+                   help="also learn the camera's rolling-shutter readout time "
+                        '(rolling_shutter_readout, s) from the drive; it needs turns')
     p.add_argument('--json', action='store_true', help='print one JSON object, no table')
     return p
 
@@ -124,6 +142,7 @@ def _main(args: argparse.Namespace) -> int:
     result = calibrate(args.bag, params, image_topic=args.image_topic,
                        camera_info_topic=args.camera_info_topic,
                        known_distance=args.known_distance,
+                       rolling_shutter=args.rolling_shutter,
                        progress=not args.json and sys.stderr.isatty())
     section = {**_raw_section(Path(args.params)), **result['values']}
     validate(section)
@@ -142,14 +161,18 @@ def _print_table(result: dict[str, Any]) -> None:
     print(f'mounting from {result["seconds"]:.1f} s of driving:')
     for name, value in result['values'].items():
         std, change = result['std'].get(name, math.inf), result['changes'][name]
-        if name in _ANGLES:
+        if name == 'rolling_shutter_readout':
+            line = (f'  {name:14s} {1e3 * value:.2f} ms  +- {1e3 * std:.2f} ms  change '
+                    f'{1e3 * change:+.2f} ms')
+        elif name in _ANGLES:
             line = (f'  {name:14s} {value:+.5f} rad ({math.degrees(value):+.3f} deg)  '
                     f'+- {math.degrees(std):.3f} deg  change {math.degrees(change):+.3f} deg')
         else:
             line = (f'  {name:14s} {value:+.4f} m  +- {std:.4f} m  change {change:+.4f} m')
         if name in result['kept']:
             line = f'  {name:14s} kept at {value:+.4f}: the drive does not determine it ' + (
-                '(no turns)' if name == 'camera_x' else '(too short)')
+                '(no turns)' if name in ('camera_x', 'rolling_shutter_readout')
+                else '(too short)')
         print(line)
     if 'measured_distance' in result:
         print(f'  the drive measured {result["measured_distance"]:.3f} m with the calibrated '

@@ -19,6 +19,7 @@ from tqdm import tqdm
 
 from planar_vo.core.config import ConfigError, defaults, load_params_file
 from planar_vo.core.estimation.calibration import MountingEstimate
+from planar_vo.core.estimation.rolling_shutter import ReadoutEstimate
 from planar_vo.core.geometry.camera import CameraModelError
 from planar_vo.core.metrics import associate, metrics
 from planar_vo.core.odometry import FrameResult, VisualOdometry
@@ -78,6 +79,7 @@ class ReplayResult:
     warnings: list[str]
     frames: int
     mounting: MountingEstimate | None = None  # what self-calibration learned over the drive
+    readout: ReadoutEstimate | None = None  # the rolling-shutter readout learned, if asked
 
 
 # The planar truth of planar_vo_synth's bags; on terrain they also hold the 3D pose.
@@ -167,7 +169,7 @@ def replay(bag: str | Path, params: dict[str, Any], *, output: str | Path | None
     if vo is None:
         raise ReplayError(f'no usable CameraInfo on {info_conn.topic}')
     return ReplayResult(estimate, truth, dict(vo.counters), warnings, frames,
-                        vo.mounting_estimate())
+                        vo.mounting_estimate(), vo.readout_estimate())
 
 
 def _process(vo: VisualOdometry, msg: Any, estimate: Trajectory, writer: BagWriter | None,

@@ -9,6 +9,12 @@ at once, then refined in 3 DoF by Gauss-Newton on the inliers.
 
 Motions are REP-103 planar motions of base_link, ``[x, y, yaw]``: the pose of base_link
 at frame 2 in base_link at frame 1 (metres, rad). Numpy only; no ROS.
+
+A rolling shutter (:mod:`planar_vo.core.estimation.rolling_shutter`) enters as a
+``stretch`` per correspondence: with a constant twist over the pair, the motion between the
+two rows a track was seen in is the frame motion to the power ``s_i = 1 + (tau2 - tau1) /
+dt`` (:func:`~planar_vo.core.geometry.se2.power`). Every function here takes it (None: a
+global shutter, every ``s_i = 1``, the code paths of before).
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ import numpy as np
 
 from planar_vo.core.errors import PoseEstimationError
 from planar_vo.core.geometry.camera import CameraModel, Mounting, level_to_base
-from planar_vo.core.geometry.se2 import circular_motion
+from planar_vo.core.geometry.se2 import circular_motion, power
 from planar_vo.core.geometry.solvers import homography_npoint, paper_to_planar
 
 __all__ = ['TransferModel', 'RansacResult', 'PoseEstimationError', 'estimate_motion',
@@ -98,17 +104,32 @@ def _predict(motions: np.ndarray, p1: np.ndarray, model: TransferModel) -> np.nd
     return (qx[..., None] * model.A[:, 0] + qy[..., None] * model.A[:, 1] + model.b)
 
 
+def _predict_per_point(motions: np.ndarray, p1: np.ndarray,
+                       model: TransferModel) -> np.ndarray:
+    """Optical-frame points (B, N, 3) of ground points (N, 2), each its own motion (B, N, 3)."""
+    x, y, yaw = motions[..., 0], motions[..., 1], motions[..., 2]
+    c, s = np.cos(yaw), np.sin(yaw)
+    dx, dy = p1[:, 0] - x, p1[:, 1] - y
+    qx, qy = c * dx + s * dy, c * dy - s * dx
+    return qx[..., None] * model.A[:, 0] + qy[..., None] * model.A[:, 1] + model.b
+
+
 def _squared_errors(motions: np.ndarray, p1: np.ndarray, m2: np.ndarray,
-                    model: TransferModel) -> np.ndarray:
+                    model: TransferModel, stretch: np.ndarray | None = None) -> np.ndarray:
     """Squared transfer errors (B, N) in normalized units, inf behind the camera.
 
     The RANSAC hot path: float32, a handful of in-place operations on (B, N) arrays.
+    ``stretch`` (N,): each point's motion is the hypothesis to that power.
     """
     A, b = model.A.astype(np.float32), model.b.astype(np.float32)
-    yaw = motions[:, 2:3].astype(np.float32)
+    if stretch is None:
+        mx, my, yaw = (motions[:, i:i + 1].astype(np.float32) for i in range(3))
+    else:
+        per_point = power(motions[:, None, :], stretch[None, :]).astype(np.float32)
+        mx, my, yaw = per_point[..., 0], per_point[..., 1], per_point[..., 2]
     c, s = np.cos(yaw), np.sin(yaw)
-    dx = p1[:, 0] - motions[:, 0:1].astype(np.float32)
-    dy = p1[:, 1] - motions[:, 1:2].astype(np.float32)
+    dx = p1[:, 0] - mx
+    dy = p1[:, 1] - my
     qx = c * dx
     qx += s * dy
     qy = dy
@@ -136,7 +157,8 @@ def _squared_errors(motions: np.ndarray, p1: np.ndarray, m2: np.ndarray,
 
 
 def transfer_errors(
-    motions: np.ndarray, p1: np.ndarray, m2: np.ndarray, model: TransferModel
+    motions: np.ndarray, p1: np.ndarray, m2: np.ndarray, model: TransferModel,
+    stretch: np.ndarray | None = None,
 ) -> np.ndarray:
     """Pixel distance between predicted and observed frame-2 points.
 
@@ -144,12 +166,16 @@ def transfer_errors(
         motions: (3,) or (B, 3) candidate motions.
         p1: (N, 2) frame-1 ground points in base_link.
         m2: (N, 2) observed frame-2 normalized image coordinates.
+        stretch: (N,) rolling-shutter stretch of each point's motion (None: global shutter).
 
     Returns:
         (N,) or (B, N) errors in pixels; inf where the point would be behind the camera.
     """
     motions = np.asarray(motions, dtype=float)
-    P = _predict(motions.reshape(-1, 3), p1, model)
+    if stretch is None:
+        P = _predict(motions.reshape(-1, 3), p1, model)
+    else:
+        P = _predict_per_point(power(motions.reshape(-1, 1, 3), stretch[None, :]), p1, model)
     z = P[..., 2]
     safe = np.where(z > 1e-6, z, 1.0)
     du = P[..., 0] / safe - m2[:, 0]
@@ -188,6 +214,37 @@ def _residuals_and_jacobian(
     return m - m2_t, J, front
 
 
+def _residuals_and_jacobian_stretched(
+    motion: np.ndarray, stretch: np.ndarray, p1_t: np.ndarray, m2_t: np.ndarray,
+    model: TransferModel
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_residuals_and_jacobian` with each point's motion ``power(motion, stretch_i)``.
+
+    The Jacobian is with respect to the frame motion: the per-point transfer's analytic one
+    chained with d power / d motion (central differences, 3 x 2 evaluations over N).
+    """
+    per_point = power(motion, stretch)  # (N, 3)
+    c, s = np.cos(per_point[:, 2]), np.sin(per_point[:, 2])
+    dx, dy = p1_t[0] - per_point[:, 0], p1_t[1] - per_point[:, 1]
+    q = np.stack([c * dx + s * dy, c * dy - s * dx])
+    A = model.A
+    P = A @ q + model.b[:, None]
+    front = P[2] > 1e-9
+    iz = np.divide(1.0, P[2], out=np.zeros_like(P[2]), where=front)
+    m = P[:2] * iz
+    dq = np.stack([np.stack([-c, s]), np.stack([-s, -c]), np.stack([q[1], -q[0]])])  # (3, 2, N)
+    dP = np.einsum('ij,kjn->kin', A, dq)  # (3, 3, N)
+    J_point = (dP[:, :2] - dP[:, 2:3] * m) * iz  # d m / d per-point motion, (3, 2, N)
+    h = 1e-6
+    D = np.empty((3, 3, len(stretch)))  # D[j, k] = d per_point_k / d motion_j
+    for j in range(3):
+        step = np.zeros(3)
+        step[j] = h
+        D[j] = ((power(motion + step, stretch) - power(motion - step, stretch)) / (2 * h)).T
+    J = np.einsum('jkn,kin->jin', D, J_point)
+    return m - m2_t, J, front
+
+
 def refine_motion(
     motion: np.ndarray,
     p1: np.ndarray,
@@ -197,6 +254,7 @@ def refine_motion(
     circular: bool = False,
     iterations: int = 10,
     threshold_px: float | None = None,
+    stretch: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     """Gauss-Newton on the transfer error, in 3 DoF or on the circular 2-DoF manifold.
 
@@ -204,7 +262,8 @@ def refine_motion(
     until the set no longer changes: refinement and inlier selection converge together.
     (Freezing the set earlier, chosen around a motion not yet converged, biases the result
     by about one standard deviation when the noise is near the threshold; a test pins it.)
-    Without ``threshold_px`` every point is used.
+    Without ``threshold_px`` every point is used. ``stretch`` (N,): the rolling shutter's
+    (see the module docstring).
 
     Returns:
         (motion (3,), covariance (3, 3) of (x, y, yaw), rms inlier error in pixels, inliers
@@ -218,7 +277,10 @@ def refine_motion(
     threshold2 = np.inf if threshold_px is None else (threshold_px / model.focal_px) ** 2
     inliers, predicted_drop = np.ones(len(p1), bool), 0.0
     for i in range(iterations + 1):
-        r, J, front = _residuals_and_jacobian(motion, p1_t, m2_t, model)
+        if stretch is None:
+            r, J, front = _residuals_and_jacobian(motion, p1_t, m2_t, model)
+        else:
+            r, J, front = _residuals_and_jacobian_stretched(motion, stretch, p1_t, m2_t, model)
         squared = r[0] * r[0] + r[1] * r[1]
         selected = front & (squared < threshold2)
         changed = not np.array_equal(selected, inliers)
@@ -357,6 +419,7 @@ def estimate_motion(
     circular_refine: bool = False,
     scored: int = 128,
     rng: np.random.Generator | None = None,
+    stretch: np.ndarray | None = None,
 ) -> RansacResult:
     """Robust planar motion from ground correspondences.
 
@@ -374,6 +437,9 @@ def estimate_motion(
         circular_refine: keep the circular constraint in the refinement too.
         scored: hypotheses are scored on a random subset of this many correspondences
             (enough to rank them); the refinement then uses every correspondence.
+        stretch: (N,) rolling-shutter stretch of each correspondence (None: a global
+            shutter). A 1-point hypothesis is then the motion between the track's two rows:
+            the frame motion is it to the power ``1 / s_i``.
 
     Raises:
         PoseEstimationError: fewer than 3 correspondences, or no hypothesis with 3 inliers.
@@ -385,6 +451,8 @@ def estimate_motion(
     sample = 2 if method == '2point' else 1
     if method == 'histogram':
         hyp = _hypotheses_1point(p1, p2)
+        if stretch is not None:
+            hyp = power(hyp, 1.0 / stretch)
         yaw = float(np.median(hyp[:, 2]))
         # Signed travel along the chord: outliers scatter on both signs, so the median holds.
         chord = hyp[:, 0] * np.cos(hyp[:, 2] / 2) + hyp[:, 1] * np.sin(hyp[:, 2] / 2)
@@ -395,6 +463,7 @@ def estimate_motion(
         order = rng.permutation(n)
         subset = order[:scored]
         p1_32, m2_32 = p1[subset].astype(np.float32), m2[subset].astype(np.float32)
+        s_32 = None if stretch is None else stretch[subset]
         threshold2 = np.float32((threshold_px / model.focal_px) ** 2)
         best, best_cost, best_count, tried, needed = None, np.inf, 0, 0, cap
         while tried < min(cap, needed):
@@ -402,9 +471,14 @@ def estimate_motion(
             if sample == 1:
                 idx = order[tried:tried + k]
                 hyp = _hypotheses_1point(p1[idx], p2[idx])
+                if stretch is not None:
+                    hyp = power(hyp, 1.0 / stretch[idx])
             else:
-                hyp = _hypotheses_2point(p1, p2, model.height, _random_pairs(rng, n, k))
-            err2 = _squared_errors(hyp, p1_32, m2_32, model)
+                pairs = _random_pairs(rng, n, k)
+                hyp = _hypotheses_2point(p1, p2, model.height, pairs)
+                if stretch is not None:
+                    hyp = power(hyp, 1.0 / stretch[pairs].mean(axis=1))
+            err2 = _squared_errors(hyp, p1_32, m2_32, model, s_32)
             # MSAC cost: inliers count by how well they fit, outliers at the threshold.
             np.minimum(err2, threshold2, out=err2)
             cost = err2.sum(axis=1)
@@ -420,7 +494,8 @@ def estimate_motion(
     if best is None:
         raise PoseEstimationError('no motion hypothesis could be formed')
     motion, covariance, rms, inliers = refine_motion(
-        best, p1, m2, model, circular=circular_refine, threshold_px=threshold_px, iterations=20)
+        best, p1, m2, model, circular=circular_refine, threshold_px=threshold_px, iterations=20,
+        stretch=stretch)
     return RansacResult(motion, covariance, inliers, tried, rms)
 
 

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['compose', 'inverse_motion', 'circular_motion', 'twist_motion', 'mean_twist']
+__all__ = ['compose', 'inverse_motion', 'circular_motion', 'twist_motion', 'mean_twist',
+           'power']
 
 
 def compose(
@@ -68,3 +69,26 @@ def mean_twist(motion: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     jac = np.zeros((3, 3))
     jac[:2, :2], jac[:2, 2], jac[2, 2] = v_inv, d_yaw, 1.0
     return np.append(v_inv @ np.array([x, y]), yaw) / dt, jac / dt
+
+
+def power(motion: np.ndarray, s: np.ndarray | float) -> np.ndarray:
+    """``motion`` to the power ``s``: the constant twist that makes it, held ``s`` times as long.
+
+    ``exp(s log(motion))``, broadcast over leading axes of ``motion`` (..., 3) and ``s``.
+    A circular motion stays circular (its yaw and arc length times ``s``); ``s = 1`` is the
+    motion itself, ``s = 0`` none. Smooth through yaw = 0 (series there).
+    """
+    motion = np.asarray(motion)
+    x, y, yaw = motion[..., 0], motion[..., 1], motion[..., 2]
+    half = 0.5 * yaw
+    small = np.abs(half) < 1e-4
+    safe = np.where(small, 1.0, half)
+    k = np.where(small, 1.0 - half * half / 3.0, safe / np.tan(safe))
+    ux, uy = k * x + half * y, k * y - half * x  # the log's translation part
+    a = yaw * s
+    small_a = np.abs(a) < 1e-4
+    safe_a = np.where(small_a, 1.0, a)
+    sinc = np.where(small_a, 1.0 - a * a / 6.0, np.sin(safe_a) / safe_a)
+    cosc = np.where(small_a, a / 2.0 - a ** 3 / 24.0, (1.0 - np.cos(safe_a)) / safe_a)
+    return np.stack([s * (sinc * ux - cosc * uy), s * (cosc * ux + sinc * uy),
+                     a * np.ones_like(x)], axis=-1)

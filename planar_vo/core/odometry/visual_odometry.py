@@ -33,6 +33,13 @@ from planar_vo.core.estimation.ransac import (
     refine_motion,
     transfer_errors,
 )
+from planar_vo.core.estimation.rolling_shutter import (
+    ReadoutCalibrator,
+    ReadoutEstimate,
+    ShutterModel,
+    readout_advice,
+    readout_measurement,
+)
 from planar_vo.core.frontend.ground_frontend import GroundFrontEnd
 from planar_vo.core.frontend.tracker import Tracker
 from planar_vo.core.geometry.camera import CameraModel, Mounting, rays_through
@@ -77,6 +84,9 @@ class VisualOdometry:
         self_calibrate: bool = True,
         klt_prewarp: bool = True,
         klt_first_search: bool = True,
+        rolling_shutter_readout: float = 0.0,
+        rolling_shutter_stamp: str = 'middle',
+        learn_rolling_shutter: bool = False,
     ) -> None:
         # The defaults are the parameter schema's (a test holds them to it).
         self.front = GroundFrontEnd(
@@ -98,6 +108,11 @@ class VisualOdometry:
                          'time_jumps': 0, 'blank': 0, 'skipped': 0, 'stationary': 0}
         self._rng = np.random.default_rng(0)
         self.configured_mounting = mounting
+        # The shutter in use (the learned readout once known) and what learns it.
+        self.configured_shutter = ShutterModel(rolling_shutter_readout, rolling_shutter_stamp)
+        self.shutter = self.configured_shutter
+        self.readout_calibrator = (ReadoutCalibrator(rolling_shutter_readout)
+                                   if learn_rolling_shutter else None)
         self._update_geometry(camera, mounting, check_round_trip=True)
         self.reset()
 
@@ -122,7 +137,10 @@ class VisualOdometry:
             ground=LocalGroundFilter.from_params(mounting_from_params(params), params) if (
                 params['ground_model'] == 'local') else None,
             self_calibrate=params['self_calibrate'], klt_prewarp=params['klt_prewarp'],
-            klt_first_search=params['klt_first_search'])
+            klt_first_search=params['klt_first_search'],
+            rolling_shutter_readout=params['rolling_shutter_readout'],
+            rolling_shutter_stamp=params['rolling_shutter_stamp'],
+            learn_rolling_shutter=params['learn_rolling_shutter'])
 
     # ---------------------------------------------------------------- state, read by adapters
     @property
@@ -178,11 +196,27 @@ class VisualOdometry:
             return MountingCalibrator(self.configured_mounting).estimate()
         return self._tilt_filter.calibrator.estimate()
 
+    def readout_estimate(self) -> ReadoutEstimate | None:
+        """The rolling-shutter readout learned so far (None unless learn_rolling_shutter)."""
+        return None if self.readout_calibrator is None else self.readout_calibrator.estimate()
+
     def mounting_diagnostics(self) -> tuple[dict[str, str], dict[str, str]]:
         """(key/values for diagnostics, advice per parameter the drive says is off).
 
-        Empty while self-calibration is off.
+        The mounting's while self-calibration is on, the readout's while it is learned.
         """
+        values, advice = self._mounting_diagnostics()
+        readout = self.readout_estimate()
+        if readout is not None:
+            configured = self.configured_shutter.readout
+            values['rolling_shutter_readout estimated (ms)'] = (
+                f'{1e3 * readout.readout:.2f} +- {1e3 * readout.std:.2f}')
+            values['rolling_shutter_readout configured (ms)'] = f'{1e3 * configured:.2f}'
+            values['rolling_shutter_readout in use (ms)'] = f'{1e3 * self.shutter.readout:.2f}'
+            advice = {**advice, **readout_advice(configured, readout)}
+        return values, advice
+
+    def _mounting_diagnostics(self) -> tuple[dict[str, str], dict[str, str]]:
         if self._tilt_filter is None or not self._tilt_filter.self_calibrate:
             return {}, {}
         estimate, configured = self.mounting_estimate(), self.configured_mounting
@@ -248,6 +282,7 @@ class VisualOdometry:
                 f'{m.x:.3f} {m.y:.3f} {m.height:.3f}, {m.roll:.4f} {m.pitch:.4f} {m.yaw:.4f}'),
             'camera': (f'{self.camera.width}x{self.camera.height}, fx {self.camera.K[0, 0]:.1f}, '
                        f'{self.camera.distortion_model}'),
+            'shutter': self.shutter.describe(),
         }
 
     def _update_geometry(self, camera: CameraModel, mounting: Mounting, *,
@@ -372,6 +407,9 @@ class VisualOdometry:
         if self._tilt_filter is not None:
             ok &= self.front.window_inside(ref_px) & self.front.window_inside(cur_px)
         n = int(np.count_nonzero(ok))
+        # A rolling shutter: each track's motion is the frame's stretched by its rows' times.
+        dt = stamp - self._ref_stamp
+        stretch = self.shutter.stretch(ref_px[ok, 1], cur_px[ok, 1], self.camera.height, dt)
         t_pose = time.perf_counter()
         try:
             if self.ransac_method == 'opencv_homography':
@@ -381,9 +419,11 @@ class VisualOdometry:
                     p1[ok], p2[ok], m2[ok], model, method=self.ransac_method,
                     threshold_px=self._hypothesis_threshold(stamp),
                     confidence=self.ransac_confidence,
-                    circular_refine=self.circular_refine, rng=self._rng)
+                    circular_refine=self.circular_refine, rng=self._rng, stretch=stretch)
                 planar = est
-                if self._tilt_filter is not None:
+                # The attitude and local-ground refinements do not model a rolling shutter's
+                # rows yet: with one configured, the rigid 3-DoF estimate stands.
+                if self._tilt_filter is not None and stretch is None:
                     # The standstill test's planar motion, at the inlier threshold (the
                     # hypotheses' is wider here; the test's thresholds are the rigid model's).
                     planar = self._planar_at_inlier_threshold(est, p1[ok], m2[ok], model)
@@ -435,7 +475,9 @@ class VisualOdometry:
         self.integrator.add(start, stamp - start, step, est.covariance)
         self._ref_stamp = stamp
         # Tracks far off the motion are obstacles or mismatches: free their grid cells.
-        errors = transfer_errors(est.motion, p1[ok], m2[ok], model)
+        errors = transfer_errors(est.motion, p1[ok], m2[ok], model, stretch)
+        if self.readout_calibrator is not None:
+            self._learn_readout(planar, p1[ok], m2[ok], ref_px[ok, 1], cur_px[ok, 1], dt, model)
         self.front.drop(idx[ok][errors > _OUTLIER_DROP * self.inlier_threshold])
         self.counters['estimated'] += 1
         used = cur_px[ok]
@@ -463,6 +505,20 @@ class VisualOdometry:
         self.counters['estimated'] += 1
         self.counters['stationary'] += 1
         return self._result(stamp, FrameStatus.OK, t0, **stats)
+
+    def _learn_readout(self, est: RansacResult, p1: np.ndarray, m2: np.ndarray,
+                       v1: np.ndarray, v2: np.ndarray, dt: float, model: TransferModel) -> None:
+        """Add this pair's readout measurement; use the learned readout once known."""
+        measured = readout_measurement(est.motion, p1, m2, (v1, v2, self.camera.height, dt),
+                                       self.shutter, model, est.inliers)
+        if measured is None:
+            return
+        calibrator = copy.copy(self.readout_calibrator)  # replaced, never changed in place
+        calibrator.add(*measured, dt)
+        self.readout_calibrator = calibrator
+        usable = calibrator.usable()
+        if usable is not None:
+            self.shutter = ShutterModel(usable, self.shutter.stamp)
 
     def _require_inliers(self, inliers: np.ndarray) -> None:
         """Raise PoseEstimationError when fewer than ``min_inliers`` fit."""
