@@ -13,7 +13,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 # The venv's console scripts (planar_vo_node, started by demo and bench) are found on PATH.
 export PATH := $(abspath $(VENV))/bin:$(PATH)
 
-.PHONY: venv test lint pytest demo bench soak paper mountings clean
+.PHONY: venv test lint pytest demo bench soak paper mountings terrain clean
 
 venv: $(STAMP)
 
@@ -66,6 +66,20 @@ paper: $(STAMP)
 mountings: $(STAMP)
 	$(VENV)/bin/planar_vo_mounting_experiment --scenario car
 	$(VENV)/bin/planar_vo_mounting_experiment --scenario rough
+
+# The terrain table of docs/terrain.md: 300-frame drives at 20 Hz, 752x480 over each kind of
+# terrain (rendered once into out/terrain, a few minutes each), replayed with the shipped
+# defaults and only the nominal mounting.
+TERRAIN_CAMERA := --width 752 --height 480 --rate 20 --frames 300 --camera-height 1.1 \
+	--camera-x 1.2 --dist -0.28 0.07 0.0005 -0.0005 0 --quiet
+terrain: $(STAMP)
+	mkdir -p out/terrain
+	for kind in flat grades bumps camber hills all; do \
+		test -d out/terrain/$$kind || $(VENV)/bin/planar_vo_synth out/terrain/$$kind \
+			--terrain $$kind $(TERRAIN_CAMERA) --params-out out/terrain/$$kind.yaml || exit 1; \
+		echo "== $$kind"; \
+		$(VENV)/bin/planar_vo_replay out/terrain/$$kind --params out/terrain/$$kind.yaml || exit 1; \
+	done
 
 clean:
 	rm -rf $(VENV) build install log out *.egg-info
