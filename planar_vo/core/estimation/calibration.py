@@ -169,6 +169,23 @@ class MountingCalibrator:
         cov = np.where(np.outer(applied, applied), cov, 0.0)
         return np.where(np.isfinite(cov), cov, 0.0)
 
+    def step(self, motion: np.ndarray, motion_cov: np.ndarray, tilt: np.ndarray | None,
+             dt: float) -> tuple[Mounting | None, np.ndarray]:
+        """:meth:`add` then :meth:`apply`; (new working mounting or None, covariance (3, 3)).
+
+        The covariance is what the corrections applied so far add to ``motion``.
+
+        What self-calibration applied is known only so well: a yaw off by eta moves the step
+        sideways by x * eta (and rotates it), a camera_x off by dx by -yaw * dx. Right for one
+        step (the twist); the pose, which adds the steps as if their errors were nearly
+        independent, still undercounts this persistent one.
+        """
+        self.add(motion, motion_cov, tilt, dt)
+        working = self.working if self.apply() else None
+        x, y, yaw = motion
+        J = np.array([[-y, 0.0], [x, -yaw], [0.0, 0.0]])
+        return working, J @ self.applied_covariance() @ J.T
+
     def estimate(self) -> MountingEstimate:
         """The static mounting learned so far."""
         theta, cov = self._slip_fit()

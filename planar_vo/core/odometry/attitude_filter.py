@@ -162,16 +162,9 @@ class AttitudeFilter:
         self._learn_rate(joint.change, joint.change_cov, dt)
         calibrated = None
         if self.self_calibrate:
-            self.calibrator.add(joint.motion, joint.covariance, joint.attitude, dt)
-            if self.calibrator.apply():
-                calibrated = self.calibrator.working
-            # What self-calibration applied is known only so well: a yaw off by eta moves
-            # the step sideways by x * eta (and rotates it), a camera_x off by dx by
-            # -yaw * dx. Right for one step (the twist); the pose, which adds the steps as
-            # if their errors were nearly independent, still undercounts this persistent one.
-            x, y, yaw = joint.motion
-            J = np.array([[-y, 0.0], [x, -yaw], [0.0, 0.0]])
-            motion_cov = motion_cov + J @ self.calibrator.applied_covariance() @ J.T
+            calibrated, applied = self.calibrator.step(joint.motion, joint.covariance,
+                                                       joint.attitude, dt)
+            motion_cov = motion_cov + applied
         return RansacResult(joint.motion, motion_cov, joint.inliers, est.hypotheses,
                             joint.rms_px), calibrated
 

@@ -159,12 +159,9 @@ class LocalGroundFilter:
             # The surface's grade and cross-slope, as the camera's tilt: (roll, pitch).
             tilt = np.r_[self.tilt_offset - np.r_[fit.surface[1], -fit.surface[0]], 0.0]
             calm = not self.irregular and np.all(np.abs(fit.surface[2:]) < _CALM_CURVATURE)
-            self.calibrator.add(fit.motion, fit.covariance, tilt if calm else None, dt)
-            if self.calibrator.apply():
-                calibrated = self.calibrator.working
-            x, y, yaw = fit.motion
-            J = np.array([[-y, 0.0], [x, -yaw], [0.0, 0.0]])
-            motion_cov = motion_cov + J @ self.calibrator.applied_covariance() @ J.T
+            calibrated, applied = self.calibrator.step(fit.motion, fit.covariance,
+                                                       tilt if calm else None, dt)
+            motion_cov = motion_cov + applied
         return RansacResult(fit.motion, motion_cov, fit.inliers, est.hypotheses,
                             fit.rms_px), calibrated
 
