@@ -26,6 +26,10 @@ __all__ = ['Tracker']
 # When a prediction loses more than this share of the tracks, the motion was not the one
 # predicted (a jolt, a dropped frame): the lost ones are tracked again on the full pyramid.
 _RETRY_LOST = 0.5
+# Pyramid levels of KLT in the prewarped image: the warp leaves only the prediction's error
+# (a fraction of a pixel), which the full image alone reaches. No pyramid to build; on the
+# rendered scenarios t_rel moved by -2..+4 % against one level (docs/speed.md).
+_WARPED_LEVELS = 0
 
 
 class Tracker:
@@ -91,7 +95,7 @@ class Tracker:
         return len(self.points)
 
     def track(self, gray: np.ndarray, predicted: np.ndarray | None = None,
-              warp: np.ndarray | None = None) -> None:
+              warp: np.ndarray | None = None, warp_row: int = 0) -> None:
         """Follow every track into ``gray`` (uint8, HxW); drop the ones that fail.
 
         Args:
@@ -106,6 +110,8 @@ class Tracker:
                 windows no longer deform. A track's position in the last image becomes where
                 the warp takes it from (within a pixel of where it was): use it only when the
                 last image is the reference.
+            warp_row: ``warp`` holds the map's rows from this one on (every predicted track
+                at least two windows below it), as ``GroundWarp.rows_map`` gives them.
         """
         if self._image is not None and len(self.points):
             prev = self.points.reshape(-1, 1, 2)
@@ -115,7 +121,7 @@ class Tracker:
             else:
                 predicted = np.asarray(predicted, np.float32).reshape(-1, 2)
                 if warp is not None:  # where the warp does not hold (sky), tracks end
-                    cur, keep, anchor = self._follow_warped(gray, predicted, warp)
+                    cur, keep, anchor = self._follow_warped(gray, predicted, warp, warp_row)
                     warped = keep.copy()
                 else:
                     cur, keep = self._follow(gray, prev, predicted, self.predicted_levels)
@@ -132,26 +138,29 @@ class Tracker:
             self.points_normalized = self._normalize(self.points)
         self._image = gray
 
-    def _follow_warped(self, gray: np.ndarray, predicted: np.ndarray,
-                       warp: np.ndarray,
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _follow_warped(self, gray: np.ndarray, predicted: np.ndarray, warp: np.ndarray,
+                       warp_row: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """KLT from the last image warped by ``warp``, starting at ``predicted`` (N, 2).
 
         Returns positions (N, 2), which tracks it followed (N,) bool, and each track's
         position in the last image as the warp has it (N, 2).
         """
-        anchor = _bilinear(warp, predicted)
+        anchor = _bilinear(warp, predicted - np.float32([0, warp_row]))
         near = np.linalg.norm(anchor - self.points, axis=1) < 1.0  # the warp is sound there
         if not np.any(near):
             return np.empty_like(predicted), near, anchor
-        # Only the rows the windows can reach (the ground, below the horizon) are warped.
-        top = max(int(predicted[near, 1].min()) - 2 * self.window - 4, 0)
-        template = np.zeros_like(self._image)
-        template[top:] = cv2.remap(self._image, warp[top:], None, cv2.INTER_LINEAR,
-                                   borderMode=cv2.BORDER_REPLICATE)
+        # Only the rows the windows can reach (the ground, below the horizon) are warped, and
+        # KLT sees only those rows of both images (views, no copy): its per-call work on the
+        # whole image (derivatives) shrinks to the ground's share. Without a pyramid no
+        # window gets near the band's top edge (its margin is twice a window).
+        top = max(int(predicted[near, 1].min()) - 2 * self.window - 4, warp_row)
+        template = cv2.remap(self._image, warp[top - warp_row:], None, cv2.INTER_LINEAR,
+                             borderMode=cv2.BORDER_REPLICATE)
+        start = predicted[near] - np.float32([0, top])
         cur = np.empty_like(predicted)
-        cur[near], ok = self._follow(gray, predicted[near].reshape(-1, 1, 2), predicted[near],
-                                     self.predicted_levels, image=template)
+        cur[near], ok = self._follow(gray[top:], start.reshape(-1, 1, 2), start,
+                                     _WARPED_LEVELS, image=template)
+        cur[near, 1] += top
         used = near.copy()
         used[near] = ok
         return cur, used, anchor.astype(np.float32)
