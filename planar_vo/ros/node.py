@@ -10,8 +10,10 @@ odom → base_link on /tf when tf2_ros is installed. Service ``~/reset`` restart
 
 The odometry runs on a thread of its own: the executor's callbacks only pair images with
 their CameraInfo and hand them over. When images come faster than they are processed, the
-newest waiting one is processed next and the older ones are dropped (counted in
-/diagnostics), so the odometry answers the latest image instead of falling further behind.
+ones that came more than :data:`STALE_AFTER` before the newest are dropped (counted in
+/diagnostics), so the odometry never falls further behind than that; a shorter hiccup is
+worked off (dropping at once cost more frames than it saved: a frame after a dropped one
+moved twice as far, and is the dearer to track).
 
 Parameters come from :data:`planar_vo.core.config.SCHEMA`. An invalid start-up value (command
 line or params file) is a one-line error and exit status 2; at run time invalid values are
@@ -57,6 +59,7 @@ _PLANAR = (0, 1, 5)  # x, y, yaw within a 6x6 covariance over (x, y, z, roll, pi
 _WARN_EVERY = 10.0  # s: the same cause of a skipped frame is logged at most this often
 _WARN_CAUSES = 64  # distinct causes remembered for throttling (oldest forgotten first)
 _PAIRING_WAIT = 0.05  # s an image waits at most for the CameraInfo of its stamp
+STALE_AFTER = 0.1  # s: an image waiting this much longer than the newest one is dropped
 
 
 def _guarded(where: str):
@@ -100,7 +103,7 @@ class PlanarVoNode(Node):
         self._lock = threading.RLock()
         self._small_lock = threading.Lock()  # health and warning throttle, held briefly
         self._inbox = threading.Condition()  # paired images not yet processed, newest last
-        self._pending: list[Paired] = []
+        self._pending: list[tuple[float, Paired]] = []  # (when handed over, image)
         self._dropped = 0  # images dropped for a newer one while the odometry was busy
         self._stopping = False
         self._calibration = None  # (the last accepted CameraInfo's fields, its CameraModel)
@@ -258,15 +261,16 @@ class PlanarVoNode(Node):
     def _hand_over(self, ready: list[Paired]) -> None:
         """Give images the pairing released (oldest first) to the processing thread."""
         if ready:
+            now = time.monotonic()
             with self._inbox:
-                self._pending.extend(ready)
+                self._pending.extend((now, paired) for paired in ready)
                 self._inbox.notify()
 
     def _work(self) -> None:
-        """The processing thread: the newest paired image, again and again.
+        """The processing thread: the oldest image that is not stale, again and again.
 
-        Older images still waiting when it takes one are stale: dropped, not queued, so a
-        slow frame (or a busy machine) costs frames, never a growing delay.
+        Images that came more than :data:`STALE_AFTER` before the newest are dropped, not
+        queued: a busy machine costs frames, never a growing delay.
         """
         while True:
             with self._inbox:
@@ -274,8 +278,10 @@ class PlanarVoNode(Node):
                     self._inbox.wait()
                 if self._stopping:
                     return
-                paired, stale = self._pending[-1], len(self._pending) - 1
-                self._pending.clear()
+                newest = self._pending[-1][0]
+                stale = sum(1 for when, _ in self._pending if when < newest - STALE_AFTER)
+                paired = self._pending[stale][1]
+                del self._pending[:stale + 1]
                 self._dropped += stale
             try:
                 with self._lock:

@@ -26,10 +26,6 @@ __all__ = ['Tracker']
 # When a prediction loses more than this share of the tracks, the motion was not the one
 # predicted (a jolt, a dropped frame): the lost ones are tracked again on the full pyramid.
 _RETRY_LOST = 0.5
-# Pyramid levels of KLT in the prewarped image: the warp leaves only the prediction's error
-# (a fraction of a pixel), which the full image alone reaches. No pyramid to build; on the
-# rendered scenarios t_rel moved by -2..+4 % against one level (docs/speed.md).
-_WARPED_LEVELS = 0
 
 
 class Tracker:
@@ -44,6 +40,8 @@ class Tracker:
         window: int = 25,
         levels: int = 3,
         predicted_levels: int = 1,
+        warped_levels: int = 0,
+        iterations: int = 30,
         fb_threshold: float = 0.5,
         grid: tuple[int, int] = (4, 8),
         normalize: Callable[[np.ndarray], np.ndarray] | None = None,
@@ -54,9 +52,13 @@ class Tracker:
         self.fb_threshold = fb_threshold
         self.grid = grid
         self.levels, self.predicted_levels = levels, min(predicted_levels, levels)
+        # Pyramid levels of KLT in the prewarped image: the warp leaves only the prediction's
+        # error (a fraction of a pixel), which the full image alone reaches, so no pyramid
+        # is built (against one level: t_rel of the rendered scenarios -2..+4 %, docs/speed.md).
+        self.warped_levels = warped_levels
         self._lk = {
             'winSize': (window | 1, window | 1),
-            'criteria': (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01),
+            'criteria': (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, iterations, 0.01),
         }
         self._image: np.ndarray | None = None
         self._mask_box: tuple | None = None  # (mask, its bounding box)
@@ -151,15 +153,15 @@ class Tracker:
             return np.empty_like(predicted), near, anchor
         # Only the rows the windows can reach (the ground, below the horizon) are warped, and
         # KLT sees only those rows of both images (views, no copy): its per-call work on the
-        # whole image (derivatives) shrinks to the ground's share. Without a pyramid no
-        # window gets near the band's top edge (its margin is twice a window).
+        # whole image (derivatives) shrinks to the ground's share. No window of the full image
+        # or of one pyramid level gets near the band's top edge (its margin is two windows).
         top = max(int(predicted[near, 1].min()) - 2 * self.window - 4, warp_row)
         template = cv2.remap(self._image, warp[top - warp_row:], None, cv2.INTER_LINEAR,
                              borderMode=cv2.BORDER_REPLICATE)
         start = predicted[near] - np.float32([0, top])
         cur = np.empty_like(predicted)
         cur[near], ok = self._follow(gray[top:], start.reshape(-1, 1, 2), start,
-                                     _WARPED_LEVELS, image=template)
+                                     self.warped_levels, image=template)
         cur[near, 1] += top
         used = near.copy()
         used[near] = ok
