@@ -278,8 +278,7 @@ class PlanarVoNode(Node):
                     self._inbox.wait()
                 if self._stopping:
                     return
-                newest = self._pending[-1][0]
-                stale = sum(1 for when, _ in self._pending if when < newest - STALE_AFTER)
+                stale = stale_images([when for when, _ in self._pending])
                 paired = self._pending[stale][1]
                 del self._pending[:stale + 1]
                 self._dropped += stale
@@ -400,6 +399,15 @@ class PlanarVoNode(Node):
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self.get_clock().now().to_msg()
         self._diag_pub.publish(arr)
+
+
+def stale_images(handed_over: list[float]) -> int:
+    """How many of the waiting images (hand-over times, s, oldest first) are stale.
+
+    Those that came more than :data:`STALE_AFTER` before the newest; never the newest.
+    """
+    newest = handed_over[-1]
+    return sum(1 for when in handed_over if when < newest - STALE_AFTER)
 
 
 def _stamp_ns(stamp) -> int:
