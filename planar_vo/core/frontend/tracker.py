@@ -62,6 +62,9 @@ class Tracker:
         }
         self._image: np.ndarray | None = None
         self._mask_box: tuple | None = None  # (mask, its bounding box)
+        # Reused from frame to frame: the warped template's rows, the detection mask.
+        self._template: np.ndarray | None = None
+        self._free: np.ndarray | None = None
         self._normalize = normalize or _as_float64
         self.reset()
 
@@ -156,7 +159,10 @@ class Tracker:
         # whole image (derivatives) shrinks to the ground's share. No window of the full image
         # or of one pyramid level gets near the band's top edge (its margin is two windows).
         top = max(int(predicted[near, 1].min()) - 2 * self.window - 4, warp_row)
+        if self._template is None or self._template.shape != self._image.shape:
+            self._template = np.empty_like(self._image)
         template = cv2.remap(self._image, warp[top - warp_row:], None, cv2.INTER_LINEAR,
+                             dst=self._template[:len(self._image) - top],
                              borderMode=cv2.BORDER_REPLICATE)
         start = predicted[near] - np.float32([0, top])
         cur = np.empty_like(predicted)
@@ -230,7 +236,10 @@ class Tracker:
         x0, y0, w, h = self._detection_box(mask)
         if w == 0 or h == 0:
             return 0
-        free = mask[y0:y0 + h, x0:x0 + w].copy()  # no track within min_distance of a new one
+        if self._free is None or self._free.shape != (h, w):
+            self._free = np.empty((h, w), np.uint8)
+        free = self._free  # no track within min_distance of a new one
+        np.copyto(free, mask[y0:y0 + h, x0:x0 + w])
         radius = int(self.min_distance)
         for x, y in (self.points.astype(np.int32) - [x0, y0]).tolist():
             cv2.circle(free, (x, y), radius, 0, -1)
