@@ -52,3 +52,15 @@ def test_bad_input_is_one_clear_line(capsys, args, message):
     assert main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
+
+
+def test_curve_reports_each_front_end_variant_with_its_accuracy(capsys):
+    """--curve: every variant of the front end, its whole frame over the defaults' and its
+    t_rel over theirs (what a speed gain costs in accuracy)."""
+    from planar_vo.tools.benchmark import CURVE
+    assert main([str(BAG), '--frames', '5', '--curve', '--json']) == 0
+    rows = json.loads(capsys.readouterr().out)['curve']
+    assert [row['variant'] for row in rows] == [name for name, _, _ in CURVE]
+    assert rows[0]['time_over_defaults'] == 1.0 and rows[0]['t_rel_over_defaults'] == 1.0
+    for row in rows:
+        assert np.isfinite(row['whole_frame_ms']) and np.isfinite(row['t_rel_percent'])

@@ -98,3 +98,13 @@ def test_an_image_counts_as_arrived_when_the_middleware_received_it(monkeypatch)
     assert _received_monotonic({}) == now
     assert _received_monotonic({'received_timestamp': wall_ns + 10**9}) == now  # clock step
     assert _received_monotonic({'received_timestamp': wall_ns - 10**12}) == now  # too old
+
+
+def test_a_busy_node_drops_only_images_older_than_the_newest_by_stale_after():
+    """The processing thread takes the oldest image that is not stale: a short hiccup is
+    worked off, a long one costs frames instead of a growing delay."""
+    from planar_vo.ros.node import STALE_AFTER, stale_images
+    assert stale_images([5.0]) == 0
+    assert stale_images([5.0, 5.0 + 0.5 * STALE_AFTER]) == 0  # a hiccup: both processed
+    assert stale_images([5.0, 5.01, 5.0 + 1.5 * STALE_AFTER]) == 2
+    assert stale_images([5.0, 5.0 + STALE_AFTER]) == 0  # exactly at the bound: kept

@@ -102,15 +102,15 @@ class CameraFrontend:
 
     def add_info(self, stamp_ns: int, camera: CameraModel) -> list[Step]:
         """A CameraInfo (converted); the images it releases."""
-        return self._steps(self.pairing.add_info(stamp_ns, camera))
+        return self.steps(self.pairing.add_info(stamp_ns, camera))
 
     def add_image(self, stamp_ns: int, image: Any) -> list[Step]:
         """An image; the images ready now (it, an earlier one, both or none), oldest first."""
-        return self._steps(self.pairing.add_image(stamp_ns, image))
+        return self.steps(self.pairing.add_image(stamp_ns, image))
 
     def flush(self) -> list[Step]:
         """Stop waiting: the waiting image, if any, with the newest CameraInfo."""
-        return self._steps(self.pairing.flush())
+        return self.steps(self.pairing.flush())
 
     def rebuild(self, params: Mapping[str, Any] | config.Params | None = None) -> None:
         """A new odometry from the accepted camera (and ``params`` if given), same pose.
@@ -129,7 +129,12 @@ class CameraFrontend:
             new.counters = old.counters
         self.vo = new
 
-    def _steps(self, ready: list[Paired]) -> list[Step]:
+    def steps(self, ready: list[Paired]) -> list[Step]:
+        """What to do with each image :attr:`pairing` released.
+
+        For a caller that uses the pairing directly: the node pairs on one thread and sets
+        the camera (and runs the odometry) on another.
+        """
         return [self._step(paired) for paired in ready]
 
     def _step(self, paired: Paired) -> Step:

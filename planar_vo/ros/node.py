@@ -2,11 +2,18 @@
 
 Subscribes ``image`` (or ``<image>/compressed``) and ``camera_info``, paired by stamp
 (:mod:`planar_vo.ros.pairing`), and ``set_pose`` (geometry_msgs/PoseWithCovarianceStamped, as
-robot_localization): odometry continues from that pose. Publishes ``odom`` for every image
-(stamp = image stamp; when a frame gives no estimate the held pose is published with an
-inflated covariance; a repeated stamp publishes nothing), optional ``~/path`` and
+robot_localization): odometry continues from that pose. Publishes ``odom`` for every image it
+processes (stamp = image stamp; when a frame gives no estimate the held pose is published with
+an inflated covariance; a repeated stamp publishes nothing), optional ``~/path`` and
 ``~/debug_image``, ``/diagnostics`` about once a second (:mod:`planar_vo.ros.health`) and
 odom → base_link on /tf when tf2_ros is installed. Service ``~/reset`` restarts at the origin.
+
+The odometry runs on a thread of its own: the executor's callbacks only pair images with
+their CameraInfo and hand them over. When images come faster than they are processed, the
+ones that came more than :data:`STALE_AFTER` before the newest are dropped (counted in
+/diagnostics), so the odometry never falls further behind than that; a shorter hiccup is
+worked off (dropping at once cost more frames than it saved: a frame after a dropped one
+moved twice as far, and is the dearer to track).
 
 Parameters come from :data:`planar_vo.core.config.SCHEMA`. An invalid start-up value (command
 line or params file) is a one-line error and exit status 2; at run time invalid values are
@@ -18,6 +25,7 @@ from __future__ import annotations
 
 import functools
 import sys
+import threading
 import time
 
 import numpy as np
@@ -40,6 +48,7 @@ from planar_vo.ros import messages
 from planar_vo.ros.camera_frontend import CHANGED, CREATED, CameraFrontend, Step
 from planar_vo.ros.health import Health
 from planar_vo.ros.outputs import OdometryOutputs
+from planar_vo.ros.pairing import Paired
 from planar_vo.ros.parameters import SCHEMA_BY_NAME, StartupError, declare_schema
 from planar_vo.ros.throttle import WarningThrottle
 
@@ -50,6 +59,7 @@ _PLANAR = (0, 1, 5)  # x, y, yaw within a 6x6 covariance over (x, y, z, roll, pi
 _WARN_EVERY = 10.0  # s: the same cause of a skipped frame is logged at most this often
 _WARN_CAUSES = 64  # distinct causes remembered for throttling (oldest forgotten first)
 _PAIRING_WAIT = 0.05  # s an image waits at most for the CameraInfo of its stamp
+STALE_AFTER = 0.1  # s: an image waiting this much longer than the newest one is dropped
 
 
 def _guarded(where: str):
@@ -88,6 +98,14 @@ class PlanarVoNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('planar_vo', **kwargs)
+        # The odometry, its outputs and camera: used by the processing thread frame by frame,
+        # by the executor's callbacks (parameters, set_pose, reset, diagnostics) in between.
+        self._lock = threading.RLock()
+        self._small_lock = threading.Lock()  # health and warning throttle, held briefly
+        self._inbox = threading.Condition()  # paired images not yet processed, newest last
+        self._pending: list[tuple[float, Paired]] = []  # (when handed over, image)
+        self._dropped = 0  # images dropped for a newer one while the odometry was busy
+        self._stopping = False
         self._calibration = None  # (the last accepted CameraInfo's fields, its CameraModel)
         self._throttle = WarningThrottle(_WARN_EVERY, _WARN_CAUSES)
         self._errors = 0  # unexpected exceptions (bugs) caught in callbacks
@@ -128,6 +146,18 @@ class PlanarVoNode(Node):
             f'listening on {self._image_sub.topic_name} ({p["image_transport"]}, '
             f'{p["image_reliability"]}) and {self._info_sub.topic_name}; '
             f'publishing {self._outputs.odom_pub.topic_name}')
+        self._worker = threading.Thread(target=self._work, name='planar_vo odometry',
+                                        daemon=True)
+        self._worker.start()
+
+    def destroy_node(self) -> None:
+        """Stop the processing thread (after the frame in hand), then the node."""
+        with self._inbox:
+            self._stopping = True
+            self._inbox.notify()
+        if self._worker.is_alive() and self._worker is not threading.current_thread():
+            self._worker.join(10.0)
+        super().destroy_node()
 
     # ---------------------------------------------------------------- parameters
     def _declare_parameters(self) -> config.Params:
@@ -144,17 +174,19 @@ class PlanarVoNode(Node):
         names = {prm.name for prm in params if prm.name in SCHEMA_BY_NAME}
         self.params = self.params.replace(
             **{prm.name: prm.value for prm in params if prm.name in SCHEMA_BY_NAME})
-        self._outputs.params = self.params
-        if names & _OUTPUT_PARAMS:
-            self._outputs.update()
-        if self.vo is None or not names:
-            return
-        if names - set(config.MOUNTING_PARAMS) - _OUTPUT_PARAMS:
-            self._rebuild()
-            self.get_logger().info(f'{", ".join(sorted(names))} changed: tracking restarted')
-        elif names & set(config.MOUNTING_PARAMS):
-            self.vo.set_mounting(mounting_from_params(self.params))
-            self.get_logger().info(f'camera mounting changed: {", ".join(sorted(names))}')
+        with self._lock:
+            self._outputs.params = self.params
+            if names & _OUTPUT_PARAMS:
+                self._outputs.update()
+            if self.vo is None or not names:
+                return
+            if names - set(config.MOUNTING_PARAMS) - _OUTPUT_PARAMS:
+                self._rebuild()
+                self.get_logger().info(
+                    f'{", ".join(sorted(names))} changed: tracking restarted')
+            elif names & set(config.MOUNTING_PARAMS):
+                self.vo.set_mounting(mounting_from_params(self.params))
+                self.get_logger().info(f'camera mounting changed: {", ".join(sorted(names))}')
 
     @property
     def vo(self) -> VisualOdometry | None:
@@ -169,11 +201,13 @@ class PlanarVoNode(Node):
         """Log ``text``, throttled per cause (see :class:`WarningThrottle`)."""
         # rclpy ties a severity to each call site: two calls, not one
         log = self.get_logger().error if error else self.get_logger().warning
-        self._throttle(text, time.monotonic(), log)
+        with self._small_lock:
+            self._throttle(text, time.monotonic(), log)
 
     def _unexpected(self, where: str, err: Exception) -> None:
         """A bug, not bad input: one ERROR line with the exception, and a counter."""
-        self._errors += 1
+        with self._small_lock:
+            self._errors += 1
         self._warn(f'unexpected {type(err).__name__} while handling {where}: {err} '
                    '(state restored; please report this line)', error=True)
 
@@ -184,8 +218,7 @@ class PlanarVoNode(Node):
         except CameraModelError as err:
             self._warn(f'camera_info refused: {err}')
             return
-        for step in self._frontend.add_info(_stamp_ns(msg.header.stamp), camera):
-            self._process(step)
+        self._hand_over(self._frontend.pairing.add_info(_stamp_ns(msg.header.stamp), camera))
 
     def _camera_model(self, msg: CameraInfo):
         """The CameraModel of ``msg``; the same object again when the calibration repeats.
@@ -212,9 +245,10 @@ class PlanarVoNode(Node):
         self._receive(msg, messages.compressed_to_gray, info)
 
     def _receive(self, msg, decode, info: dict) -> None:
-        self._health.image_received(_received_monotonic(info))
-        for step in self._frontend.add_image(_stamp_ns(msg.header.stamp), (msg, decode)):
-            self._process(step)
+        stamp = _stamp_ns(msg.header.stamp)
+        with self._small_lock:
+            self._health.image_received(_received_monotonic(info))
+        self._hand_over(self._frontend.pairing.add_image(stamp, (msg, decode)))
         if self._frontend.waiting:
             self._pairing_timer.reset()
 
@@ -222,8 +256,39 @@ class PlanarVoNode(Node):
     def _stop_waiting(self) -> None:
         """The CameraInfo of the waiting image did not come in time: use the newest."""
         self._pairing_timer.cancel()
-        for step in self._frontend.flush():
-            self._process(step)
+        self._hand_over(self._frontend.pairing.flush())
+
+    def _hand_over(self, ready: list[Paired]) -> None:
+        """Give images the pairing released (oldest first) to the processing thread."""
+        if ready:
+            now = time.monotonic()
+            with self._inbox:
+                self._pending.extend((now, paired) for paired in ready)
+                self._inbox.notify()
+
+    def _work(self) -> None:
+        """The processing thread: the oldest image that is not stale, again and again.
+
+        Images that came more than :data:`STALE_AFTER` before the newest are dropped, not
+        queued: a busy machine costs frames, never a growing delay.
+        """
+        while True:
+            with self._inbox:
+                while not self._pending and not self._stopping:
+                    self._inbox.wait()
+                if self._stopping:
+                    return
+                stale = stale_images([when for when, _ in self._pending])
+                paired = self._pending[stale][1]
+                del self._pending[:stale + 1]
+                self._dropped += stale
+            try:
+                with self._lock:
+                    for step in self._frontend.steps([paired]):
+                        self._process(step)
+            except Exception as err:  # noqa: BLE001 - a bug must not kill the thread
+                if self.context.ok():  # else shutting down: publishing fails, no bug
+                    self._unexpected('an image', err)
 
     def _process(self, step: Step) -> None:
         """One image with the CameraInfo it was paired with (see CameraFrontend)."""
@@ -232,7 +297,8 @@ class PlanarVoNode(Node):
             self._warn(f'camera_info refused: {step.refused}')
         if not step.process:
             if step.refused is None:  # no CameraInfo yet
-                self._health.frame_failed('no camera_info')
+                with self._small_lock:
+                    self._health.frame_failed('no camera_info')
                 self._warn(f'no valid camera_info on {self._info_sub.topic_name} yet: image '
                            'skipped')
             return
@@ -250,7 +316,8 @@ class PlanarVoNode(Node):
         try:
             gray = decode(msg)
         except messages.ImageError as err:
-            self._health.frame_failed(f'image skipped: {err}')
+            with self._small_lock:
+                self._health.frame_failed(f'image skipped: {err}')
             self._warn(f'image skipped: {err}')
             return
         # VisualOdometry.process restores its state itself when it raises.
@@ -272,11 +339,12 @@ class PlanarVoNode(Node):
             self._warn('set_pose ignored: its pose or covariance is not '
                        'finite, or a variance is negative')
             return
-        if self.vo is None:
-            self._warn('set_pose ignored: no camera_info yet')
-            return
-        self._outputs.clear_path()
-        self.vo.set_pose(pose, cov)
+        with self._lock:
+            if self.vo is None:
+                self._warn('set_pose ignored: no camera_info yet')
+                return
+            self._outputs.clear_path()
+            self.vo.set_pose(pose, cov)
         self.get_logger().info(f'pose set to x {pose[0]:.3f} m, y {pose[1]:.3f} m, '
                                f'yaw {pose[2]:.4f} rad')
 
@@ -284,17 +352,19 @@ class PlanarVoNode(Node):
     def _publish(self, header, gray, result) -> None:
         # Odometry first: the bookkeeping below is not part of its latency.
         odom = self._outputs.publish_odometry(header, result)
-        self._health.frame_done(result)
+        with self._small_lock:
+            self._health.frame_done(result)
         if result.message and result.status not in ('ok', 'first'):
             self._warn(f'{result.status}: {result.message}')
         if odom is not None:
             self._outputs.publish_extras(odom, header, gray, result)
 
     def _on_reset(self, request, response):
-        self._outputs.clear_path()
         try:
-            if self.vo is not None:
-                self.vo.reset()
+            with self._lock:
+                self._outputs.clear_path()
+                if self.vo is not None:
+                    self.vo.reset()
         except Exception as err:  # noqa: BLE001 - a bug must not kill the node
             self._unexpected('~/reset', err)
             response.success, response.message = False, f'{type(err).__name__}: {err}'
@@ -306,18 +376,23 @@ class PlanarVoNode(Node):
 
     @_guarded('diagnostics')
     def _publish_diagnostics(self) -> None:
-        level, message, values = self._health.report(
-            time.monotonic(), calibrated=self.vo is not None,
-            ground_irregular=self.vo is not None and self.vo.ground_irregular)
-        values['unexpected errors'] = str(self._errors)
-        if self.vo is not None:
-            values.update(self.vo.diagnostics())
-            mounting, advice = self.vo.mounting_diagnostics()
-            values.update(mounting)
-            for name, line in advice.items():
-                if name not in self._mounting_advised:  # once per parameter
-                    self._mounting_advised.add(name)
-                    self.get_logger().warning(line)
+        with self._small_lock:
+            level, message, values = self._health.report(
+                time.monotonic(), calibrated=self.vo is not None,
+                ground_irregular=self.vo is not None and self.vo.ground_irregular)
+            values['unexpected errors'] = str(self._errors)
+        with self._inbox:
+            values['frames dropped for a newer one (busy)'] = str(self._dropped)
+        advice = {}
+        with self._lock:
+            if self.vo is not None:
+                values.update(self.vo.diagnostics())
+                mounting, advice = self.vo.mounting_diagnostics()
+                values.update(mounting)
+        for name, line in advice.items():
+            if name not in self._mounting_advised:  # once per parameter
+                self._mounting_advised.add(name)
+                self.get_logger().warning(line)
         status = DiagnosticStatus(
             level=bytes([level]), name=f'{self.get_fully_qualified_name()}: visual odometry',
             message=message, hardware_id=self._camera_frame,
@@ -325,6 +400,15 @@ class PlanarVoNode(Node):
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self.get_clock().now().to_msg()
         self._diag_pub.publish(arr)
+
+
+def stale_images(handed_over: list[float]) -> int:
+    """How many of the waiting images (hand-over times, s, oldest first) are stale.
+
+    Those that came more than :data:`STALE_AFTER` before the newest; never the newest.
+    """
+    newest = handed_over[-1]
+    return sum(1 for when in handed_over if when < newest - STALE_AFTER)
 
 
 def _stamp_ns(stamp) -> int:

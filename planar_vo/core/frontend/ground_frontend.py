@@ -90,13 +90,16 @@ class GroundFrontEnd:
         The last image is warped by the motion first when it is the reference frame.
         """
         predicted = None if motion is None else self._predict_tracks(motion, mounting, model)
-        warp = None
+        warp, first_row = None, 0
         if (predicted is not None and self.klt_prewarp and last_is_reference
                 and np.hypot(motion[0], motion[1]) >= _PREWARP_MIN_STEP):
             if self._warp is None or self._warp.camera is not self.camera:
                 self._warp = GroundWarp(self.camera)
-            warp = self._warp.pixel_map(model, motion)
-        self.tracker.track(gray, predicted, warp)
+            # Only the rows KLT's windows can reach: two windows above the highest track.
+            rows = predicted[np.isfinite(predicted[:, 1]), 1]
+            first_row = max(int(rows.min()) - 2 * self.tracker.window - 4, 0) if len(rows) else 0
+            warp = self._warp.rows_map(model, motion, first_row)
+        self.tracker.track(gray, predicted, warp, first_row)
 
     def _predict_tracks(self, motion: np.ndarray, mounting: Mounting,
                         model: TransferModel) -> np.ndarray | None:

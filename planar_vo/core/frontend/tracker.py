@@ -40,6 +40,8 @@ class Tracker:
         window: int = 25,
         levels: int = 3,
         predicted_levels: int = 1,
+        warped_levels: int = 1,
+        iterations: int = 30,
         fb_threshold: float = 0.5,
         grid: tuple[int, int] = (4, 8),
         normalize: Callable[[np.ndarray], np.ndarray] | None = None,
@@ -50,12 +52,20 @@ class Tracker:
         self.fb_threshold = fb_threshold
         self.grid = grid
         self.levels, self.predicted_levels = levels, min(predicted_levels, levels)
+        # Pyramid levels of KLT in the prewarped image: the warp leaves only the prediction's
+        # error, which the full image alone mostly reaches (0 levels: 0.84x the time of one,
+        # t_rel of the rendered scenarios -2..+4 %, docs/speed.md); but pulling away from a
+        # stop lost its tracks with none (the prediction after a stop is poor), so one.
+        self.warped_levels = warped_levels
         self._lk = {
             'winSize': (window | 1, window | 1),
-            'criteria': (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01),
+            'criteria': (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, iterations, 0.01),
         }
         self._image: np.ndarray | None = None
         self._mask_box: tuple | None = None  # (mask, its bounding box)
+        # Reused from frame to frame: the warped template's rows, the detection mask.
+        self._template: np.ndarray | None = None
+        self._free: np.ndarray | None = None
         self._normalize = normalize or _as_float64
         self.reset()
 
@@ -91,7 +101,7 @@ class Tracker:
         return len(self.points)
 
     def track(self, gray: np.ndarray, predicted: np.ndarray | None = None,
-              warp: np.ndarray | None = None) -> None:
+              warp: np.ndarray | None = None, warp_row: int = 0) -> None:
         """Follow every track into ``gray`` (uint8, HxW); drop the ones that fail.
 
         Args:
@@ -106,6 +116,8 @@ class Tracker:
                 windows no longer deform. A track's position in the last image becomes where
                 the warp takes it from (within a pixel of where it was): use it only when the
                 last image is the reference.
+            warp_row: ``warp`` holds the map's rows from this one on (every predicted track
+                at least two windows below it), as ``GroundWarp.rows_map`` gives them.
         """
         if self._image is not None and len(self.points):
             prev = self.points.reshape(-1, 1, 2)
@@ -115,7 +127,7 @@ class Tracker:
             else:
                 predicted = np.asarray(predicted, np.float32).reshape(-1, 2)
                 if warp is not None:  # where the warp does not hold (sky), tracks end
-                    cur, keep, anchor = self._follow_warped(gray, predicted, warp)
+                    cur, keep, anchor = self._follow_warped(gray, predicted, warp, warp_row)
                     warped = keep.copy()
                 else:
                     cur, keep = self._follow(gray, prev, predicted, self.predicted_levels)
@@ -132,26 +144,32 @@ class Tracker:
             self.points_normalized = self._normalize(self.points)
         self._image = gray
 
-    def _follow_warped(self, gray: np.ndarray, predicted: np.ndarray,
-                       warp: np.ndarray,
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _follow_warped(self, gray: np.ndarray, predicted: np.ndarray, warp: np.ndarray,
+                       warp_row: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """KLT from the last image warped by ``warp``, starting at ``predicted`` (N, 2).
 
         Returns positions (N, 2), which tracks it followed (N,) bool, and each track's
         position in the last image as the warp has it (N, 2).
         """
-        anchor = _bilinear(warp, predicted)
+        anchor = _bilinear(warp, predicted - np.float32([0, warp_row]))
         near = np.linalg.norm(anchor - self.points, axis=1) < 1.0  # the warp is sound there
         if not np.any(near):
             return np.empty_like(predicted), near, anchor
-        # Only the rows the windows can reach (the ground, below the horizon) are warped.
-        top = max(int(predicted[near, 1].min()) - 2 * self.window - 4, 0)
-        template = np.zeros_like(self._image)
-        template[top:] = cv2.remap(self._image, warp[top:], None, cv2.INTER_LINEAR,
-                                   borderMode=cv2.BORDER_REPLICATE)
+        # Only the rows the windows can reach (the ground, below the horizon) are warped, and
+        # KLT sees only those rows of both images (views, no copy): its per-call work on the
+        # whole image (derivatives) shrinks to the ground's share. No window of the full image
+        # or of one pyramid level gets near the band's top edge (its margin is two windows).
+        top = max(int(predicted[near, 1].min()) - 2 * self.window - 4, warp_row)
+        if self._template is None or self._template.shape != self._image.shape:
+            self._template = np.empty_like(self._image)
+        template = cv2.remap(self._image, warp[top - warp_row:], None, cv2.INTER_LINEAR,
+                             dst=self._template[:len(self._image) - top],
+                             borderMode=cv2.BORDER_REPLICATE)
+        start = predicted[near] - np.float32([0, top])
         cur = np.empty_like(predicted)
-        cur[near], ok = self._follow(gray, predicted[near].reshape(-1, 1, 2), predicted[near],
-                                     self.predicted_levels, image=template)
+        cur[near], ok = self._follow(gray[top:], start.reshape(-1, 1, 2), start,
+                                     self.warped_levels, image=template)
+        cur[near, 1] += top
         used = near.copy()
         used[near] = ok
         return cur, used, anchor.astype(np.float32)
@@ -229,7 +247,10 @@ class Tracker:
         x0, y0, w, h = self._detection_box(mask)
         if w == 0 or h == 0:
             return 0
-        free = mask[y0:y0 + h, x0:x0 + w].copy()  # no track within min_distance of a new one
+        if self._free is None or self._free.shape != (h, w):
+            self._free = np.empty((h, w), np.uint8)
+        free = self._free  # no track within min_distance of a new one
+        np.copyto(free, mask[y0:y0 + h, x0:x0 + w])
         radius = int(self.min_distance)
         for x, y in (self.points.astype(np.int32) - [x0, y0]).tolist():
             cv2.circle(free, (x, y), radius, 0, -1)

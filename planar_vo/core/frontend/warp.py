@@ -41,6 +41,8 @@ class GroundWarp:
         uu, vv = np.meshgrid(u, v)
         self._shape = (h, w)
         self._rays = rays_through(camera.normalize(np.c_[uu.ravel(), vv.ravel()]))
+        self._buffer: np.ndarray | None = None  # the last map, reused while its size holds
+        self._ground: tuple | None = None  # (mounting, the rays' ground points and validity)
 
     def pixel_map(self, model: TransferModel, motion: np.ndarray) -> np.ndarray:
         """The (H, W, 2) float32 map of (x, y) for the base_link ``motion`` (x, y, yaw).
@@ -49,22 +51,46 @@ class GroundWarp:
         ground as ``model`` (its mounting) sees it; far outside the image where the pixel
         sees no ground. ``cv2.remap(last, map, None, ...)`` takes it as it is.
         """
-        ground, valid = model.mounting.ground_points(self._rays)
-        coarse = np.full((len(self._rays), 2), -1e4)
+        return self.rows_map(model, motion, 0).copy()
+
+    def rows_map(self, model: TransferModel, motion: np.ndarray,
+                 first_row: int) -> np.ndarray:
+        """:meth:`pixel_map`'s rows from ``first_row`` on, (H - first_row, W, 2).
+
+        Only those rows are interpolated (a camera's ground is its lower part), the same
+        values as :meth:`pixel_map`'s, into a buffer reused from call to call: the map is a
+        view valid until the next call.
+        """
+        first_row = int(np.clip(first_row, 0, self.camera.height - 1))
+        h, w = self._shape
+        step = self.step
+        # The padded grid is resized from its row r0 on (see below): only the coarse rows
+        # from k0 on are needed (padded row i is coarse row i - 1; two at least).
+        r0 = (first_row + step // 2) // step
+        k0 = min(max(r0 - 1, 0), h - 2)
+        if self._ground is None or self._ground[0] != model.mounting:
+            self._ground = (model.mounting, *model.mounting.ground_points(self._rays))
+        ground, valid = self._ground[1][k0 * w:], self._ground[2][k0 * w:]
+        coarse = np.full((len(valid), 2), -1e4)
         if np.any(valid):
             back = self.camera.distort(model.transfer(inverse_motion(motion), ground[valid]))
             coarse[valid] = np.where(np.isfinite(back), back, -1e4)
-        coarse = coarse.reshape(*self._shape, 2).astype(np.float32)
+        coarse = coarse.reshape(h - k0, w, 2).astype(np.float32)
         # One sample more on every side, extrapolated linearly: every pixel then lies between
         # samples (held at the edge value instead, the outer half cells were up to 8 px off).
-        h, w = self._shape
         padded = np.empty((h + 2, w + 2, 2), np.float32)
-        padded[1:-1, 1:-1] = coarse
-        padded[0, 1:-1], padded[-1, 1:-1] = 2 * coarse[0] - coarse[1], 2 * coarse[-1] - coarse[-2]
-        padded[:, 0], padded[:, -1] = (2 * padded[:, 1] - padded[:, 2],
-                                       2 * padded[:, -2] - padded[:, -3])
-        step = self.step
-        full = cv2.resize(padded, ((w + 2) * step, (h + 2) * step),
-                          interpolation=cv2.INTER_LINEAR)
-        return np.ascontiguousarray(
-            full[step:step + self.camera.height, step:step + self.camera.width])
+        padded[k0 + 1:-1, 1:-1] = coarse
+        if k0 == 0:
+            padded[0, 1:-1] = 2 * coarse[0] - coarse[1]
+        padded[-1, 1:-1] = 2 * coarse[-1] - coarse[-2]
+        used = 0 if k0 == 0 else k0 + 1
+        padded[used:, 0], padded[used:, -1] = (2 * padded[used:, 1] - padded[used:, 2],
+                                               2 * padded[used:, -2] - padded[used:, -3])
+        # Resized from the padded row r0 on, the rows from half a cell below it on are those
+        # of the whole resize (the same source rows and weights: the offset is whole cells).
+        size = ((w + 2) * step, (h + 2 - r0) * step)
+        if self._buffer is None or self._buffer.shape[1::-1] != size:
+            self._buffer = np.empty((size[1], size[0], 2), np.float32)
+        full = cv2.resize(padded[r0:], size, dst=self._buffer, interpolation=cv2.INTER_LINEAR)
+        top = first_row + step - r0 * step
+        return full[top:top + self.camera.height - first_row, step:step + self.camera.width]
