@@ -22,7 +22,7 @@ from planar_vo.core.estimation.calibration import MountingCalibrator
 from planar_vo.core.estimation.ransac import PoseEstimationError, RansacResult, TransferModel
 from planar_vo.core.geometry.camera import Mounting
 
-__all__ = ['AttitudeNoise', 'AttitudeFilter']
+__all__ = ['AttitudeNoise', 'AttitudeFilter', 'jolt_threshold']
 
 # How fast the body moves is learned over about this long (s); never below (rad/s, m/s).
 # A rigid mount learns the floor: its tilt is then averaged over many frames. 3e-3 rad/s
@@ -34,6 +34,16 @@ _MIN_RATE = np.array([3e-4, 3e-4, 1e-6])
 # finds its inliers: the hypotheses see both frames at frame 1's attitude.
 _JOLT_SIGMAS = 3.0
 FIXED_HEIGHT = 1e-6  # m, m/s: the height's spread and rate when it is not estimated
+
+
+def jolt_threshold(rate2: np.ndarray, inlier_threshold: float, focal_px: float,
+                   dt: float) -> float:
+    """The hypotheses' inlier threshold (px) through a jolt of ``_JOLT_SIGMAS`` learned rates.
+
+    ``rate2``: the squared roll and pitch rates first; ``dt``: seconds since the reference.
+    """
+    tilt = float(np.sqrt(rate2[0] + rate2[1])) * dt
+    return max(inlier_threshold, _JOLT_SIGMAS * focal_px * tilt)
 
 
 @dataclass(frozen=True)
@@ -117,8 +127,7 @@ class AttitudeFilter:
         the hypotheses then found 3-7 inliers of 500 and the frame was lost. The joint
         refinement comes down from this threshold to the inlier threshold.
         """
-        tilt = float(np.sqrt(self.rate2[0] + self.rate2[1])) * dt
-        return max(inlier_threshold, _JOLT_SIGMAS * focal_px * tilt)
+        return jolt_threshold(self.rate2, inlier_threshold, focal_px, dt)
 
     def refine(self, est: RansacResult, rays1: np.ndarray, m2: np.ndarray,
                mounting: Mounting, model: TransferModel, *, dt: float,

@@ -25,6 +25,7 @@ from planar_vo.core.estimation.local_ground import (
 )
 from planar_vo.core.estimation.ransac import RansacResult, TransferModel
 from planar_vo.core.geometry.camera import Mounting
+from planar_vo.core.odometry.attitude_filter import jolt_threshold
 
 __all__ = ['LocalGroundFilter']
 
@@ -39,7 +40,6 @@ _SURFACE_FLOOR = np.array([1e-4, 1e-4, 1e-5, 1e-5, 1e-5])
 # past a road's crown) weigh less. On the rendered camber drive 1 took t_rel from 0.25 to
 # 0.08 %; 2: 0.12 %.
 _CAUCHY = 1.0
-_JOLT_SIGMAS = 3.0  # hypotheses find their inliers through a rotation this many sigmas large
 _RATE_MEMORY_S = 2.0
 _MIN_RATE = np.array([0.05, 0.05, 0.01])  # rad/s, rad/s, m/s: the learned rate's floor
 _IRREGULAR_SIGMAS = 3.0  # a surface this many prior sigmas from the last: irregular ground
@@ -117,8 +117,7 @@ class LocalGroundFilter:
         any planar motion by up to ``_JOLT_SIGMAS`` of the learned rate; the refinement
         comes down from this threshold to the inlier threshold.
         """
-        tilt = float(np.sqrt(self.rate2[0] + self.rate2[1])) * dt
-        return max(inlier_threshold, _JOLT_SIGMAS * focal_px * tilt)
+        return jolt_threshold(self.rate2, inlier_threshold, focal_px, dt)
 
     def refine(self, est: RansacResult, rays1: np.ndarray, m2: np.ndarray,
                mounting: Mounting, model: TransferModel, *, dt: float,
