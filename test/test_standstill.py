@@ -23,6 +23,7 @@ from planar_vo.core.odometry import VisualOdometry
 from planar_vo.core.odometry.standstill import (
     ENTER_CHI2,
     EXIT_CHI2,
+    MAX_STILL_STEP,
     TWIST_SIGMA,
     Standstill,
     zero_motion_chi2,
@@ -153,6 +154,16 @@ def test_the_zero_motion_test_and_its_hysteresis():
     exit_ = np.sqrt(EXIT_CHI2) * 1e-4
     assert not s.moved(np.array([0.9 * exit_, 0, 0]), cov)  # between the two: stays put
     assert s.moved(np.array([1.1 * exit_, 0, 0]), cov)
+
+
+def test_a_jolt_s_loose_fit_is_not_a_stop():
+    """A wheel on a speed bump shakes the tracks off any rigid motion: the fit's step is
+    long and its covariance loose enough to pass the chi-square test. Not a stop."""
+    loose = np.diag([0.05 ** 2, 0.05 ** 2, 0.01 ** 2])
+    step = np.array([0.3, 0.0, 0.0])  # 6 m/s at 20 Hz
+    assert zero_motion_chi2(step, loose) < ENTER_CHI2
+    assert not Standstill().quiet(step, loose)
+    assert Standstill().quiet(np.array([0.5 * MAX_STILL_STEP, 0, 0]), loose)
 
 
 def test_planar_vo_synth_writes_a_stop_scenario_whole(tmp_path, capsys):
