@@ -473,6 +473,8 @@ class VisualOdometry:
                 self.tracker.reference_normalized[rows].copy(), previous), stamp)
             return self._hold_still(stamp, t0, previous, est, stats)
         self.integrator.add(start, stamp - start, step, est.covariance)
+        if self.ground is not None:
+            self.ground.advance(est.motion)
         self._ref_stamp = stamp
         # Tracks far off the motion are obstacles or mismatches: free their grid cells.
         errors = transfer_errors(est.motion, p1[ok], m2[ok], model, stretch)

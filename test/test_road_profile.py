@@ -1,0 +1,82 @@
+"""The road's history tells a sprung body's tilt from a grade ahead (RoadProfile).
+
+A vehicle with a wheelbase drives along a known road profile; each frame pair hands the
+profile what the local ground model would measure: the camera's rotation between the frames
+and the road's gradient ahead relative to the camera. The body's tilt read back from the
+history is compared with the one the drive was given.
+"""
+
+import numpy as np
+
+from planar_vo.core.odometry.road_profile import RoadProfile
+
+WHEELBASE = 2.7
+STEP = 0.25  # m per frame (5 m/s at 20 Hz)
+
+
+def _road(s):
+    """Height (m) along the path: flat, then a 4 % grade reached over a 10 m vertical curve."""
+    s = np.asarray(s, dtype=float)
+    ramp = np.clip((s - 15.0) / 10.0, 0.0, 1.0)
+    return 0.04 * np.where(s < 15.0, 0.0, np.where(s < 25.0, 5.0 * ramp ** 2,
+                                                   5.0 + (s - 25.0)))
+
+
+def _slope(s):
+    return (_road(s + 1e-4) - _road(s - 1e-4)) / 2e-4
+
+
+def _drive(body_pitch, frames=160):
+    """The pitch (rad, nose down) read back at each frame (NaN before the history covers the
+    wheelbase), for a body pitched by ``body_pitch(k)`` on top of the road."""
+    profile, read = RoadProfile.empty(), []
+    level = None
+    for k in range(frames):
+        s = k * STEP
+        chord = (_road(s + WHEELBASE) - _road(s)) / WHEELBASE
+        camera_level = chord - body_pitch(k)  # nose down lowers the camera's base plane
+        if level is not None:
+            ahead = WHEELBASE + np.array([0.5, 1.5, 2.5, 3.5])
+            slopes = _slope(s - STEP + ahead) - level  # relative to the camera at frame 1
+            k_fit, ep = np.polyfit(ahead - WHEELBASE, slopes, 1)
+            surface = np.array([ep, 0.0, k_fit, 0.0, 0.0])
+            rotation = np.array([0.0, -(camera_level - level)])
+            profile = profile.with_pair(np.array([STEP, 0.0, 0.0]), rotation, surface,
+                                        np.eye(5) * 1e-8, np.zeros(2), WHEELBASE, False)
+        level = camera_level
+        seen = profile.camera_tilt(WHEELBASE, 1.0)
+        read.append(np.nan if seen is None else seen[0][1])
+    return np.array(read)
+
+
+def test_a_grade_ahead_is_not_taken_for_the_body_s_tilt():
+    """A rigid vehicle drives onto a grade: from one pair the grade ahead looks like the
+    camera pitched down; the history says the camera stands level on its wheels."""
+    read = _drive(lambda k: 0.0)
+    known = ~np.isnan(read)
+    assert np.count_nonzero(known) > 120  # the history covers the wheels after ~4 m
+    assert np.max(np.abs(read[known])) < np.radians(0.05), np.degrees(read[known]).max()
+
+
+def test_a_sprung_body_s_pitch_is_read_back_over_a_grade_change():
+    """The body pitches +-1 deg at 1.3 Hz while the vehicle drives onto the same grade."""
+    def body(k):
+        return np.radians(1.0) * np.sin(2 * np.pi * 1.3 * k / 20.0)
+    read = _drive(body)
+    truth = np.array([body(k) for k in range(len(read))])
+    known = ~np.isnan(read)
+    error = read[known] - truth[known]
+    assert np.max(np.abs(error)) < np.radians(0.05), np.degrees(np.abs(error).max())
+
+
+def test_nothing_is_read_until_the_wheels_stand_on_seen_ground_and_not_over_a_bump():
+    profile = RoadProfile.empty()
+    assert profile.camera_tilt(WHEELBASE, 1.0) is None
+    for rough in (False,) * 30 + (True,):
+        profile = profile.with_pair(np.array([STEP, 0.0, 0.0]), np.zeros(2), np.zeros(5),
+                                    np.eye(5) * 1e-8, np.zeros(2), WHEELBASE, rough)
+    assert profile.camera_tilt(WHEELBASE, 1.0) is not None  # the bump is still ahead
+    for _ in range(12):  # drive on until the wheels are on it
+        profile = profile.with_pair(np.array([STEP, 0.0, 0.0]), np.zeros(2), np.zeros(5),
+                                    np.eye(5) * 1e-8, np.zeros(2), WHEELBASE, False)
+    assert profile.camera_tilt(WHEELBASE, 1.0) is None
