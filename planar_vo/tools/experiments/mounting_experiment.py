@@ -6,7 +6,7 @@ and on a rigid one along the same path, and run through the odometry core:
 - the rigid mount with the rigid model (what the sprung body is measured against);
 - the sprung body with the attitude estimated and the body's pivot configured, the mounting
   kept; the same with self-calibration; OpenCV's per-pair homography on the same tracks;
-- the plain OpenCV pipeline on the same sprung frames (its own tracking over the whole image,
+- the plain OpenCV pipeline on the same sprung frames (its own tracking on the ground region,
   :class:`planar_vo.tools.experiments.opencv_pipeline.OpenCVReference`): the route the issue
   measured the product against, before any of planar_vo's front end.
 
