@@ -20,6 +20,7 @@ from planar_vo.core.estimation.local_ground import (
 from planar_vo.core.geometry.camera import Mounting
 from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry
+from planar_vo.tools.experiments.mounting_experiment import plain_opencv_path
 from test.conftest import synth_camera_model
 
 MOUNT = Mounting(x=1.2, y=0.0, height=1.1, roll=0.0, pitch=np.radians(8.0), yaw=0.0)
@@ -124,6 +125,19 @@ def test_hills_and_grades_hold_with_the_shipped_defaults(terrain, bound):
     assert all(r.status in ('first', 'ok') for r in results)
     assert local['t_rel_percent'] < bound, local
     assert local['t_rel_percent'] * 3 < plane['t_rel_percent'], (local, plane)
+
+
+@pytest.mark.parametrize('terrain', ['hills', 'grades', 'bumps'])
+def test_terrain_is_over_3x_better_than_the_plain_opencv_pipeline(terrain):
+    """The same frames through the plain OpenCV pipeline (ground features, LK, homography,
+    decomposition; ``plain_opencv_path``), both against the renderer's planar truth.
+    Measured (100 frames, 376x240): hills 0.19 vs 4.06 %, grades 0.20 vs 2.98 %, bumps 0.37
+    vs 4.05 %."""
+    camera, mount, images, truth, _ = _render(terrain)
+    ours, _, _ = _drive(terrain, 'local')
+    params = config.validate(config.mounting_params(mount))
+    opencv = metrics(plain_opencv_path(camera, params, images), truth)
+    assert ours['t_rel_percent'] * 3 < opencv['t_rel_percent'], (ours, opencv)
 
 
 def test_irregular_ground_is_reported_and_smooth_ground_is_not():
