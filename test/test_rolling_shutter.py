@@ -108,7 +108,8 @@ def test_a_rolling_shutter_drive_is_as_accurate_as_a_global_shutter(scenario, ra
 
 def test_the_readout_is_learned_from_a_drive_with_turns():
     """752x480 (at 376x240 KLT's aliasing biases it about 12 % low), tight turns, 20 Hz, a
-    30 ms readout, configured as a global shutter. Measured: 28.9 +- 0.3 ms over 28 m."""
+    30 ms readout, configured as a global shutter, the shipped ground model (local).
+    Measured: 30.9 ms over 28 m (the plane model, before the tilt was freed: 28.9)."""
     from planar_vo.core import config
     from planar_vo.core.odometry import VisualOdometry
 
@@ -116,11 +117,8 @@ def test_the_readout_is_learned_from_a_drive_with_turns():
     renderer, traj = synth.render_scenario('tight', 240, 0, rate=20.0,
                                            camera=synth.SynthCamera.scaled(752, 480),
                                            rolling_shutter=RollingShutter(0.03))
-    # Learning the readout is the plane model's for now: under the local ground (the default)
-    # it ended at 0 on this drive (the tracks near the image's edges, which tell the most, are
-    # left out there).
     params = config.validate({**config.mounting_params(renderer.mounting),
-                              'ground_model': 'plane', 'learn_rolling_shutter': True})
+                              'learn_rolling_shutter': True})
     vo = VisualOdometry.from_params(synth_camera_model(renderer), params)
     for k in range(len(traj.t)):
         vo.process(renderer.render_frame(traj, k), k / 20.0)
@@ -131,4 +129,5 @@ def test_the_readout_is_learned_from_a_drive_with_turns():
     values, advice = vo.mounting_diagnostics()
     assert 'rolling_shutter_readout' in advice  # configured 0: warned
     assert 'estimated' in ' '.join(values)
-    assert vo.diagnostics()['shutter'].startswith('rolling shutter, readout 2')
+    assert vo.diagnostics()['shutter'].startswith(
+        f'rolling shutter, readout {1e3 * learned.readout:.2f} ms')
