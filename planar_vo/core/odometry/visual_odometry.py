@@ -37,6 +37,7 @@ from planar_vo.core.estimation.rolling_shutter import (
     ReadoutCalibrator,
     ReadoutEstimate,
     ShutterModel,
+    at_stamp,
     readout_advice,
     readout_measurement,
 )
@@ -421,19 +422,19 @@ class VisualOdometry:
                     confidence=self.ransac_confidence,
                     circular_refine=self.circular_refine, rng=self._rng, stretch=stretch)
                 planar = est
-                # The attitude and local-ground refinements do not model a rolling shutter's
-                # rows yet: with one configured, the rigid 3-DoF estimate stands.
-                if self._tilt_filter is not None and stretch is None:
+                if self._tilt_filter is not None:
                     # The standstill test's planar motion, at the inlier threshold (the
                     # hypotheses' is wider here; the test's thresholds are the rigid model's).
-                    planar = self._planar_at_inlier_threshold(est, p1[ok], m2[ok], model)
-                    est, calibrated = self._tilt_filter.refine(
-                        est, rays1[ok], m2[ok], self.mounting, model,
-                        dt=stamp - self._ref_stamp, inlier_threshold=self.inlier_threshold,
-                        start_threshold=self._hypothesis_threshold(stamp),
-                        min_inliers=self.min_inliers)
-                    if calibrated is not None:
-                        self._use_mounting(calibrated)
+                    planar = self._planar_at_inlier_threshold(est, p1[ok], m2[ok], model,
+                                                              stretch)
+                    rays_1, m_2 = rays1[ok], m2[ok]
+                    if stretch is not None:
+                        # The attitude and local-ground refinements see a global shutter:
+                        # each observation moved to its frame's stamp by the 3-DoF motion.
+                        rays_1, m_2 = self._at_stamps(
+                            est.motion, (p1[ok], p2[ok]), (ref_px[ok, 1], cur_px[ok, 1]), dt,
+                            model)
+                    est = self._refine_tilted(est, rays_1, m_2, model, stamp)
             self._require_inliers(est.inliers)
         except PoseEstimationError as err:
             pose_ms = 1e3 * (time.perf_counter() - t_pose)
@@ -490,14 +491,53 @@ class VisualOdometry:
             inlier_points=used[est.inliers], outlier_points=used[~est.inliers])
 
     def _planar_at_inlier_threshold(self, est: RansacResult, p1: np.ndarray, m2: np.ndarray,
-                                     model: TransferModel) -> RansacResult:
+                                     model: TransferModel,
+                                     stretch: np.ndarray | None) -> RansacResult:
         """``est`` refined in 3 DoF with the inlier threshold (for the standstill test)."""
         try:
             motion, covariance, rms, inliers = refine_motion(
-                est.motion, p1, m2, model, threshold_px=self.inlier_threshold)
+                est.motion, p1, m2, model, threshold_px=self.inlier_threshold,
+                stretch=stretch)
         except PoseEstimationError:  # a jolt: no rigid motion fits, so not a stop either
             return est
         return RansacResult(motion, covariance, inliers, est.hypotheses, rms)
+
+    def _at_stamps(self, motion: np.ndarray, points: tuple[np.ndarray, np.ndarray],
+                   rows: tuple[np.ndarray, np.ndarray], dt: float,
+                   model: TransferModel) -> tuple[np.ndarray, np.ndarray]:
+        """(frame-1 rays, frame-2 normalized points) as a global shutter at the stamps saw them.
+
+        ``points``: the tracks' ground points in both frames; ``rows``: their pixel rows.
+        """
+        height = self.camera.height
+        m1, m2 = (at_stamp(p, self.shutter.row_time(v, height), motion, dt, model)
+                  for p, v in zip(points, rows))
+        return rays_through(m1), m2
+
+    def _refine_tilted(self, est: RansacResult, rays1: np.ndarray, m2: np.ndarray,
+                       model: TransferModel, stamp: float) -> RansacResult:
+        """``est`` refined by the attitude or local-ground filter; learn the mounting.
+
+        While the readout is being learned and not yet known, the mounting learns nothing: the
+        shear of an unmodelled readout looks like a grade ahead, which self-calibration would
+        take for the camera's pitch, and the readout measured through that pitch for none.
+        """
+        tilt = self._tilt_filter
+        held = copy.copy(tilt.calibrator) if self._learning_readout else None
+        est, calibrated = tilt.refine(
+            est, rays1, m2, self.mounting, model, dt=stamp - self._ref_stamp,
+            inlier_threshold=self.inlier_threshold,
+            start_threshold=self._hypothesis_threshold(stamp), min_inliers=self.min_inliers)
+        if held is not None:
+            tilt.calibrator, calibrated = held, None
+        if calibrated is not None:
+            self._use_mounting(calibrated)
+        return est
+
+    @property
+    def _learning_readout(self) -> bool:
+        """True while learn_rolling_shutter is on and the readout is not yet known."""
+        return self.readout_calibrator is not None and self.readout_calibrator.usable() is None
 
     def _hold_still(self, stamp: float, t0: float, previous: float, est: RansacResult,
                     stats: dict) -> FrameResult:
