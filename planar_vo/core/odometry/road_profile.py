@@ -22,9 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ['RoadProfile']
+__all__ = ['SAMPLES_AHEAD', 'RoadProfile']
 
-_AHEAD = np.array([0.5, 1.5, 2.5, 3.5])  # m past the hinge where a pair samples the road
+SAMPLES_AHEAD = np.array([0.5, 1.5, 2.5, 3.5])  # m past the hinge where a pair samples the road
+_AHEAD = SAMPLES_AHEAD
 _BINS = 3  # the wheelbase in this many parts, each needs a sample: the chord's mean gradient
 _KEEP_BEHIND = 1.0  # m behind the rear axle a sample is still kept
 _MAX_SAMPLES = 400
@@ -62,7 +63,7 @@ class RoadProfile:
 
     def with_pair(self, motion: np.ndarray, rotation: np.ndarray, surface: np.ndarray,
                   surface_cov: np.ndarray, tilt: np.ndarray, hinge: float,
-                  rough: bool) -> RoadProfile:
+                  rough: bool | np.ndarray) -> RoadProfile:
         """Add what a frame pair saw and move on to base_link of its second frame.
 
         Args:
@@ -85,7 +86,7 @@ class RoadProfile:
         points = np.vstack([self.points, np.c_[hinge + _AHEAD, np.zeros_like(_AHEAD)]])
         gradients = np.vstack([self.gradients, self.level + np.c_[along, across]])
         variances = np.r_[self.variances, 0.5 * (var_along + var_across)]
-        rough_ = np.r_[self.rough, np.full(len(_AHEAD), rough)]
+        rough_ = np.r_[self.rough, np.broadcast_to(rough, _AHEAD.shape)]
         seen_level = np.vstack([self.seen_level, np.tile(self.level, (len(_AHEAD), 1))])
         level = self.level + np.array([-rotation[1], rotation[0]])
         # Into base_link 2.
