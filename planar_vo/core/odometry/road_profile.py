@@ -101,13 +101,13 @@ class RoadProfile:
         """(roll, pitch) of the camera to the chord of its wheels, rad, and its variance.
 
         Beyond the configured mounting. None until the ground under every part of the
-        wheelbase has been seen, and while any of it was seen irregular: the wheels on a
-        bump tilt the vehicle by what the smooth surface never held.
+        wheelbase has been seen. Ground seen irregular (a bump's band) is left out: the chord
+        is the smooth road's, and a vehicle tilted by a bump under a wheel reads as a tilt to
+        it (the caller's gate decides whether to believe it).
         """
         x, y = self.points[:, 0], self.points[:, 1]
         under = (x >= 0.0) & (x <= wheelbase) & (np.abs(y) <= half_track)
-        if np.any(self.rough[under]):
-            return None
+        under &= ~self.rough
         drift = np.linalg.norm(self.level - self.seen_level, axis=1)
         variances = self.variances + (_LEVEL_ERROR * drift) ** 2
         edges = np.linspace(0.0, wheelbase, _BINS + 1)
