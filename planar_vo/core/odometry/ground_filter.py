@@ -195,10 +195,21 @@ class LocalGroundFilter:
         prior = GroundPrior(np.diag(self.rate2 * dt * dt), self.surface,
                             self.surface_cov + np.diag(step ** 2))
         v1 = rays1 @ camera.base_from_optical.T
-        fit = refine_on_local_ground(
-            est.motion, v1, m2, camera, prior, focal_px=model.focal_px,
-            threshold_px=inlier_threshold, start_threshold_px=start_threshold,
-            hinge=self.hinge, cauchy=_CAUCHY)
+        try:
+            fit = refine_on_local_ground(
+                est.motion, v1, m2, camera, prior, focal_px=model.focal_px,
+                threshold_px=inlier_threshold, start_threshold_px=start_threshold,
+                hinge=self.hinge, cauchy=_CAUCHY)
+        except PoseEstimationError:
+            # A jolt beyond the learned rate (a wheel hitting a bump turns the car 1-2 deg
+            # in a frame): once more with the rate's upper bound, from a wider threshold.
+            jolt = GroundPrior(np.diag(self.rates ** 2 * dt * dt), prior.surface,
+                               prior.surface_cov)
+            wide = jolt_threshold(self.rates ** 2, inlier_threshold, model.focal_px, dt)
+            fit = refine_on_local_ground(
+                est.motion, v1, m2, camera, jolt, focal_px=model.focal_px,
+                threshold_px=inlier_threshold, start_threshold_px=max(wide, start_threshold),
+                hinge=self.hinge, cauchy=_CAUCHY)
         keep = off_surface_bands(fit, v1, m2, camera, self.hinge, model.focal_px)
         # The road's history is not kept where a band went: the smooth surface is not the
         # road there (all four terrains with a sprung body: 0.50 -> 0.44 %; marking every
