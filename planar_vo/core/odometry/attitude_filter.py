@@ -22,7 +22,7 @@ from planar_vo.core.estimation.calibration import MountingCalibrator
 from planar_vo.core.estimation.ransac import PoseEstimationError, RansacResult, TransferModel
 from planar_vo.core.geometry.camera import Mounting
 
-__all__ = ['AttitudeNoise', 'AttitudeFilter', 'jolt_threshold']
+__all__ = ['JOLT_SIGMAS', 'AttitudeNoise', 'AttitudeFilter', 'jolt_threshold']
 
 # How fast the body moves is learned over about this long (s); never below (rad/s, m/s).
 # A rigid mount learns the floor: its tilt is then averaged over many frames. 3e-3 rad/s
@@ -32,18 +32,18 @@ _RATE_MEMORY_S = 2.0
 _MIN_RATE = np.array([3e-4, 3e-4, 1e-6])
 # A tilt change of this many standard deviations (the learned rate) between two frames still
 # finds its inliers: the hypotheses see both frames at frame 1's attitude.
-_JOLT_SIGMAS = 3.0
+JOLT_SIGMAS = 3.0
 FIXED_HEIGHT = 1e-6  # m, m/s: the height's spread and rate when it is not estimated
 
 
 def jolt_threshold(rate2: np.ndarray, inlier_threshold: float, focal_px: float,
                    dt: float) -> float:
-    """The hypotheses' inlier threshold (px) through a jolt of ``_JOLT_SIGMAS`` learned rates.
+    """The hypotheses' inlier threshold (px) through a jolt of ``JOLT_SIGMAS`` learned rates.
 
     ``rate2``: the squared roll and pitch rates first; ``dt``: seconds since the reference.
     """
     tilt = float(np.sqrt(rate2[0] + rate2[1])) * dt
-    return max(inlier_threshold, _JOLT_SIGMAS * focal_px * tilt)
+    return max(inlier_threshold, JOLT_SIGMAS * focal_px * tilt)
 
 
 @dataclass(frozen=True)
@@ -122,7 +122,7 @@ class AttitudeFilter:
         """Inlier threshold (px) for what sees both frames at the reference's attitude.
 
         ``dt``: seconds since the reference. The tilt's change since the reference (the
-        learned rate) moves the points off any planar motion by up to ``_JOLT_SIGMAS`` of
+        learned rate) moves the points off any planar motion by up to ``JOLT_SIGMAS`` of
         it: a jolt on a rough road at 20 Hz is 0.35 deg, 5 px, and at the inlier threshold
         the hypotheses then found 3-7 inliers of 500 and the frame was lost. The joint
         refinement comes down from this threshold to the inlier threshold.

@@ -27,7 +27,7 @@ from planar_vo.core.estimation.local_ground import (
 )
 from planar_vo.core.estimation.ransac import RansacResult, TransferModel
 from planar_vo.core.geometry.camera import Mounting
-from planar_vo.core.odometry.attitude_filter import jolt_threshold
+from planar_vo.core.odometry.attitude_filter import JOLT_SIGMAS, jolt_threshold
 from planar_vo.core.odometry.road_profile import SAMPLES_AHEAD, RoadProfile
 
 __all__ = ['LocalGroundFilter', 'off_surface_bands']
@@ -172,7 +172,7 @@ class LocalGroundFilter:
         """Inlier threshold (px) of the planar hypotheses, ``dt`` s after the reference.
 
         The vehicle's rotation between the frames (a bump, a crest) moves every point off
-        any planar motion by up to ``_JOLT_SIGMAS`` of the learned rate; the refinement
+        any planar motion by up to ``JOLT_SIGMAS`` of the learned rate; the refinement
         comes down from this threshold to the inlier threshold.
         """
         return jolt_threshold(self.rate2, inlier_threshold, focal_px, dt)
@@ -210,6 +210,11 @@ class LocalGroundFilter:
                 est.motion, v1, m2, camera, jolt, focal_px=model.focal_px,
                 threshold_px=inlier_threshold, start_threshold_px=max(wide, start_threshold),
                 hinge=self.hinge, cauchy=_CAUCHY)
+            if np.any(np.abs(fit.rotation[:2]) > JOLT_SIGMAS * self.rates[:2] * dt):
+                # No vehicle turns that fast: an image that matches nothing (a shifted or
+                # corrupt frame) fitted by a rotation.
+                raise PoseEstimationError(
+                    'no motion fits the local ground, even as a jolt') from None
         keep = off_surface_bands(fit, v1, m2, camera, self.hinge, model.focal_px)
         # The road's history is not kept where a band went: the smooth surface is not the
         # road there (all four terrains with a sprung body: 0.50 -> 0.44 %; marking every
