@@ -84,6 +84,7 @@ mountings: $(STAMP)
 # The terrain table of docs/terrain.md: 300-frame drives at 20 Hz, 752x480 over each kind of
 # terrain (rendered once into out/terrain, a few minutes each), replayed with the shipped
 # defaults and only the nominal mounting.
+SPRUNG_BODY := --body-pitch 1.0 --body-roll 0.6 --bounce 0.015
 TERRAIN_CAMERA := --width 752 --height 480 --rate 20 --frames 300 --camera-height 1.1 \
 	--camera-x 1.2 --dist -0.28 0.07 0.0005 -0.0005 0 --quiet
 terrain: $(STAMP)
@@ -93,6 +94,16 @@ terrain: $(STAMP)
 			--terrain $$kind $(TERRAIN_CAMERA) --params-out out/terrain/$$kind.yaml || exit 1; \
 		echo "== $$kind"; \
 		$(VENV)/bin/planar_vo_replay out/terrain/$$kind --params out/terrain/$$kind.yaml || exit 1; \
+	done
+	for case in "sprung flat $(SPRUNG_BODY)" "all_sprung all $(SPRUNG_BODY)" \
+			"miscal flat --configured-error pitch=1,roll=1,yaw=1,x=0.15"; do \
+		set -- $$case; name=$$1; kind=$$2; shift 2; \
+		test -d out/terrain/$$name || $(VENV)/bin/planar_vo_synth out/terrain/$$name \
+			--terrain $$kind $(TERRAIN_CAMERA) "$$@" --params-out out/terrain/$$name.yaml \
+			|| exit 1; \
+		echo "== $$name"; \
+		$(VENV)/bin/planar_vo_replay out/terrain/$$name --params out/terrain/$$name.yaml \
+			|| exit 1; \
 	done
 
 clean:
