@@ -54,6 +54,7 @@ _BAND_MIN_TRACKS = 6
 _BAND_SIGMAS = 4.0
 _BAND_OFFSET = 0.5
 _BAND_MAX_SHARE = 1 / 3
+_REFIT_SIGMAS = 5.0
 _BAND_REACH = 0.75  # m: a band's rays meet the wheel plane up to 0.4 m beyond the bump
 _MIN_SIGMA_PX = 0.05
 _RATE_MEMORY_S = 2.0
@@ -232,7 +233,8 @@ class LocalGroundFilter:
                     hinge=self.hinge, cauchy=_CAUCHY)
             except PoseEstimationError:
                 again = None
-            if again is not None and np.count_nonzero(again.inliers) >= min_inliers:
+            if (again is not None and np.count_nonzero(again.inliers) >= min_inliers
+                    and _consistent(again, fit)):
                 inliers = np.zeros(len(v1), bool)
                 inliers[np.flatnonzero(keep)[again.inliers]] = True
                 weights = np.zeros(len(v1))
@@ -358,6 +360,19 @@ class LocalGroundFilter:
             'ground ahead irregular': str(self.irregular),
         }
 
+
+
+def _consistent(again: LocalGroundResult, fit: LocalGroundResult) -> bool:
+    """Whether the refit without the bands stayed within _REFIT_SIGMAS of the first fit.
+
+    A band is a few tracks' bias, not a different motion: a refit that jumps further lost
+    its way (leaving out half the inliers once lost the tracks on a rendered drive).
+    """
+    change = again.motion - fit.motion
+    try:
+        return float(change @ np.linalg.solve(fit.covariance, change)) < _REFIT_SIGMAS ** 2
+    except np.linalg.LinAlgError:
+        return False
 
 
 def _wheel_plane_distance(camera: Mounting, v1: np.ndarray) -> np.ndarray:
