@@ -42,7 +42,7 @@ from planar_vo.core.geometry.camera import rays_through
 from planar_vo.core.geometry.se2 import power, twist_motion
 
 __all__ = ['STAMP_FRACTION', 'ShutterModel', 'ReadoutEstimate', 'ReadoutCalibrator',
-           'at_stamp', 'accelerated', 'readout_measurement', 'readout_advice']
+           'at_stamp', 'accelerated', 'carry', 'readout_measurement', 'readout_advice']
 
 #: The stamp's place in the readout: the fraction c of the readout before it.
 STAMP_FRACTION = {'start': 0.0, 'middle': 0.5, 'end': 1.0}
@@ -81,6 +81,33 @@ class ShutterModel:
             return None
         return 1.0 + (self.row_time(v2, height) - self.row_time(v1, height)) / max(dt, 1e-6)
 
+    def seen_in_other(self, points: np.ndarray, rows: np.ndarray, motion: np.ndarray,
+                      dt: float, pixels, height: int, *, forward: bool,
+                      iterations: int = 2) -> np.ndarray:
+        """Pixels (N, 2) where ground points seen at pixel ``rows`` are in the other image.
+
+        ``points`` (N, 2): ground points in base_link at their rows' times; in the image
+        before ``motion`` (``forward``: seen in the next one) or after it (seen in the
+        reference one); ``motion`` over ``dt`` s between the two stamps; ``pixels``: base_link
+        ground points (N, 2) to pixels (N, 2). Each point moves by the motion stretched by its
+        two rows' times (see the module), the other row found by ``iterations`` fixed-point
+        steps from a global shutter's.
+        """
+        tau = self.row_time(rows, height)
+        s = np.ones(len(points))
+        for _ in range(iterations + 1):
+            step = power(motion, s)
+            if forward:  # base_link after the motion: R^T (p - t)
+                c, sn = np.cos(step[:, 2]), np.sin(step[:, 2])
+                x, y = points[:, 0] - step[:, 0], points[:, 1] - step[:, 1]
+                other = pixels(np.c_[c * x + sn * y, c * y - sn * x])
+                s = 1.0 + (self.row_time(other[:, 1], height) - tau) / max(dt, 1e-6)
+            else:
+                other = pixels(carry(step, points))
+                s = 1.0 + (tau - self.row_time(other[:, 1], height)) / max(dt, 1e-6)
+            s = np.where(np.isfinite(s), s, 1.0)
+        return other
+
     def describe(self) -> str:
         """The shutter model, as /diagnostics says it."""
         if self.global_shutter:
@@ -96,7 +123,7 @@ def _held(rate: np.ndarray, seconds: np.ndarray) -> np.ndarray:
                  np.asarray(seconds, dtype=float) / unit)
 
 
-def _carry(motion: np.ndarray, points: np.ndarray) -> np.ndarray:
+def carry(motion: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Points (N, 2) in the frame a motion (N, 3) ends in, in the frame it starts from."""
     c, s = np.cos(motion[:, 2]), np.sin(motion[:, 2])
     x, y = points[:, 0], points[:, 1]
@@ -141,8 +168,8 @@ def at_stamp(points: np.ndarray, offset: np.ndarray, motion: np.ndarray, dt: flo
     offset = np.asarray(offset, dtype=float)
     moved = power(motion, offset / max(dt, 1e-6))  # (N, 3)
     if rate is not None:
-        points = _carry(_held(rate, offset * (0.5 * offset + centre)), points)
-    return model.project(_carry(moved, points))
+        points = carry(_held(rate, offset * (0.5 * offset + centre)), points)
+    return model.project(carry(moved, points))
 
 
 def readout_measurement(motion: np.ndarray, p1: np.ndarray, m2: np.ndarray,

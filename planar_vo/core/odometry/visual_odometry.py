@@ -362,7 +362,8 @@ class VisualOdometry:
             held = twist_motion(self.twist, dt) if self.integrator.twist_known else None
             motion = self.front.predicted_motion(gray, dt, model, held)
             self.front.track(gray, motion, mounting, model,
-                             last_is_reference=self._ref_stamp == previous)
+                             last_is_reference=self._ref_stamp == previous,
+                             shutter=self.shutter, dt=dt)
         t_track = time.perf_counter()
         result = self._estimate(stamp, t0, previous, reference_image)
         result.timing_ms['track'] = 1e3 * (t_track - t0)
