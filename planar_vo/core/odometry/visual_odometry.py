@@ -437,10 +437,19 @@ class VisualOdometry:
                     rays_1, m_2 = rays1[ok], m2[ok]
                     if stretch is not None:
                         # The attitude and local-ground refinements see a global shutter:
-                        # each observation moved to its frame's stamp by the 3-DoF motion.
-                        rays_1, m_2 = self._at_stamps(
-                            est.motion, (p1[ok], p2[ok]), (ref_px[ok, 1], cur_px[ok, 1]), dt,
-                            model, rate)
+                        # each observation moved to its frame's stamp by the 3-DoF motion,
+                        # then again by the motion they refine from it.
+                        deskew = ((p1[ok], p2[ok]), (ref_px[ok, 1], cur_px[ok, 1]), dt, model,
+                                  rate)
+                        rays_1, m_2 = self._at_stamps(est.motion, *deskew)
+                        first = self._trial_refine(est, rays_1, m_2, model, stamp)
+                        # The twist's rate of change from the last pair to this one (half a
+                        # pair late, not one): with a twist changing linearly it is exact.
+                        later = self.integrator.twist_at_stamp.rate_to(self._ref_stamp, stamp,
+                                                                       first.motion)
+                        if rate is not None and later is not None:
+                            deskew = (*deskew[:-1], later)
+                        rays_1, m_2 = self._at_stamps(first.motion, *deskew)
                     est = self._refine_tilted(est, rays_1, m_2, model, stamp)
             self._require_inliers(est.inliers)
         except PoseEstimationError as err:
@@ -549,6 +558,23 @@ class VisualOdometry:
         if calibrated is not None:
             self._use_mounting(calibrated)
         return est
+
+    def _trial_refine(self, est: RansacResult, rays1: np.ndarray, m2: np.ndarray,
+                      model: TransferModel, stamp: float) -> RansacResult:
+        """The tilted refinement of ``est``, leaving the filter as it was (learns nothing)."""
+        tilt = self._tilt_filter
+        state, calibrator = copy.copy(vars(tilt)), copy.copy(vars(tilt.calibrator))
+        try:
+            return tilt.refine(
+                est, rays1, m2, self.mounting, model, dt=stamp - self._ref_stamp,
+                inlier_threshold=self.inlier_threshold,
+                start_threshold=self._hypothesis_threshold(stamp),
+                min_inliers=self.min_inliers)[0]
+        finally:
+            vars(tilt).clear()
+            vars(tilt).update(state)
+            vars(tilt.calibrator).clear()
+            vars(tilt.calibrator).update(calibrator)
 
     @property
     def _learning_readout(self) -> bool:
