@@ -417,7 +417,8 @@ class VisualOdometry:
         rate = None if stretch is None else self._twist_rate()
         p1_ok = p1[ok]
         if rate is not None:
-            p1_ok = accelerated(p1_ok, self._row_times(ref_px[ok, 1], cur_px[ok, 1]), dt, rate)
+            p1_ok = accelerated(p1_ok, self._row_times(ref_px[ok, 1], cur_px[ok, 1]), dt, rate,
+                                self.twist)
         t_pose = time.perf_counter()
         try:
             if self.ransac_method == 'opencv_homography':
