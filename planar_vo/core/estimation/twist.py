@@ -58,6 +58,30 @@ class TwistAtStamp:
         adjacent = self.steps and abs(self.steps[-1].end - start) < 1e-6 * max(1.0, dt)
         return replace(self, steps=(self.steps[-1], step) if adjacent else (step,))
 
+    def rate(self, end: float) -> np.ndarray | None:
+        """The twist's rate of change (3,) (m/s², m/s², rad/s²) between the last two means.
+
+        None unless two adjacent intervals are known and the last ends at ``end`` (s).
+        """
+        if len(self.steps) < 2 or abs(self.steps[-1].end - end) > 1e-6:
+            return None
+        prev, last = self.steps
+        span = 0.5 * (last.start + last.end) - 0.5 * (prev.start + prev.end)
+        return (last.twist - prev.twist) / max(span, 1e-6)
+
+    def rate_to(self, start: float, end: float, motion: np.ndarray) -> np.ndarray | None:
+        """The twist's rate of change (3,) from the last interval's mean to ``motion``'s.
+
+        ``motion`` measured over ``[start, end]`` (s), the interval after the last one (None
+        when it does not start where the last one ended, or nothing is known yet).
+        """
+        if not self.steps or abs(self.steps[-1].end - start) > 1e-6:
+            return None
+        last = self.steps[-1]
+        twist, _ = mean_twist(np.asarray(motion, dtype=float), max(end - start, 1e-6))
+        span = 0.5 * (start + end) - 0.5 * (last.start + last.end)
+        return (twist - last.twist) / max(span, 1e-6)
+
     def estimate(self) -> tuple[np.ndarray, np.ndarray]:
         """The twist (3,) at the end of the last interval and its covariance (3, 3)."""
         if not self.steps:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from planar_vo.core.estimation.ransac import TransferModel
+from planar_vo.core.estimation.rolling_shutter import ShutterModel
 from planar_vo.core.frontend.ground_mask import ground_mask
 from planar_vo.core.frontend.motion_search import GroundMotionSearch
 from planar_vo.core.frontend.tracker import Tracker
@@ -84,12 +85,19 @@ class GroundFrontEnd:
                                    self.horizon_margin)
 
     def track(self, gray: np.ndarray, motion: np.ndarray | None, mounting: Mounting,
-              model: TransferModel, *, last_is_reference: bool) -> None:
+              model: TransferModel, *, last_is_reference: bool,
+              shutter: ShutterModel | None = None, dt: float = 0.0) -> None:
         """Follow the tracks into ``gray``, started where ``motion`` puts them.
 
-        The last image is warped by the motion first when it is the reference frame.
+        The last image is warped by the motion first when it is the reference frame. With a
+        rolling ``shutter`` (``motion`` over ``dt`` s) each track and each pixel of the warp
+        moves by the motion stretched by its rows' times: the warped window is then the
+        image's, not sheared by the readout.
         """
-        predicted = None if motion is None else self._predict_tracks(motion, mounting, model)
+        if shutter is not None and shutter.global_shutter:
+            shutter = None
+        predicted = None if motion is None else self._predict_tracks(motion, mounting, model,
+                                                                     shutter, dt)
         warp, first_row = None, 0
         if (predicted is not None and self.klt_prewarp and last_is_reference
                 and np.hypot(motion[0], motion[1]) >= _PREWARP_MIN_STEP):
@@ -98,17 +106,26 @@ class GroundFrontEnd:
             # Only the rows KLT's windows can reach: two windows above the highest track.
             rows = predicted[np.isfinite(predicted[:, 1]), 1]
             first_row = max(int(rows.min()) - 2 * self.tracker.window - 4, 0) if len(rows) else 0
-            warp = self._warp.rows_map(model, motion, first_row)
+            warp = self._warp.rows_map(model, motion, first_row, shutter, dt)
         self.tracker.track(gray, predicted, warp, first_row)
 
-    def _predict_tracks(self, motion: np.ndarray, mounting: Mounting,
-                        model: TransferModel) -> np.ndarray | None:
+    def _predict_tracks(self, motion: np.ndarray, mounting: Mounting, model: TransferModel,
+                        shutter: ShutterModel | None = None,
+                        dt: float = 0.0) -> np.ndarray | None:
         """Pixels (N, 2) where ground tracks should be after ``motion``."""
         points = self.tracker.points
         if not len(points):
             return None
         ground, valid = mounting.ground_points(rays_through(self.tracker.points_normalized))
         predicted = points.astype(np.float64)
+        if shutter is not None:
+            def pixels(ground_points: np.ndarray) -> np.ndarray:
+                return self.camera.distort(model.transfer(np.zeros(3), ground_points))
+            moved = shutter.seen_in_other(ground[valid], predicted[valid, 1], motion, dt,
+                                          pixels, self.camera.height, forward=True)
+            ok = np.all(np.isfinite(moved), axis=1)
+            predicted[np.flatnonzero(valid)[ok]] = moved[ok]
+            return predicted
         moved = model.transfer(motion, ground[valid])
         ok = np.all(np.isfinite(moved), axis=1)
         rows = np.flatnonzero(valid)[ok]

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from planar_vo.core.estimation.ransac import TransferModel
+from planar_vo.core.estimation.rolling_shutter import ShutterModel
 from planar_vo.core.geometry.camera import CameraModel, rays_through
 from planar_vo.core.geometry.se2 import inverse_motion
 
@@ -41,6 +42,7 @@ class GroundWarp:
         uu, vv = np.meshgrid(u, v)
         self._shape = (h, w)
         self._rays = rays_through(camera.normalize(np.c_[uu.ravel(), vv.ravel()]))
+        self._rows = vv.ravel()  # the samples' pixel rows (a rolling shutter's times)
         self._buffer: np.ndarray | None = None  # the last map, reused while its size holds
         self._ground: tuple | None = None  # (mounting, the rays' ground points and validity)
 
@@ -53,13 +55,15 @@ class GroundWarp:
         """
         return self.rows_map(model, motion, 0).copy()
 
-    def rows_map(self, model: TransferModel, motion: np.ndarray,
-                 first_row: int) -> np.ndarray:
+    def rows_map(self, model: TransferModel, motion: np.ndarray, first_row: int,
+                 shutter: ShutterModel | None = None, dt: float = 0.0) -> np.ndarray:
         """:meth:`pixel_map`'s rows from ``first_row`` on, (H - first_row, W, 2).
 
         Only those rows are interpolated (a camera's ground is its lower part), the same
         values as :meth:`pixel_map`'s, into a buffer reused from call to call: the map is a
-        view valid until the next call.
+        view valid until the next call. With a rolling ``shutter`` (``motion`` over ``dt``
+        s), each pixel is mapped from where the ground it sees was at its row's time in the
+        last image (its motion stretched by the two rows' times, as the estimator has it).
         """
         first_row = int(np.clip(first_row, 0, self.camera.height - 1))
         h, w = self._shape
@@ -72,7 +76,13 @@ class GroundWarp:
             self._ground = (model.mounting, *model.mounting.ground_points(self._rays))
         ground, valid = self._ground[1][k0 * w:], self._ground[2][k0 * w:]
         coarse = np.full((len(valid), 2), -1e4)
-        if np.any(valid):
+        if np.any(valid) and shutter is not None and not shutter.global_shutter:
+            def pixels(points: np.ndarray) -> np.ndarray:
+                return self.camera.distort(model.transfer(np.zeros(3), points))
+            back = shutter.seen_in_other(ground[valid], self._rows[k0 * w:][valid], motion, dt,
+                                         pixels, self.camera.height, forward=False)
+            coarse[valid] = np.where(np.isfinite(back), back, -1e4)
+        elif np.any(valid):
             back = self.camera.distort(model.transfer(inverse_motion(motion), ground[valid]))
             coarse[valid] = np.where(np.isfinite(back), back, -1e4)
         coarse = coarse.reshape(h - k0, w, 2).astype(np.float32)

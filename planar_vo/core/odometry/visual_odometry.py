@@ -37,6 +37,7 @@ from planar_vo.core.estimation.rolling_shutter import (
     ReadoutCalibrator,
     ReadoutEstimate,
     ShutterModel,
+    accelerated,
     at_stamp,
     readout_advice,
     readout_measurement,
@@ -361,7 +362,8 @@ class VisualOdometry:
             held = twist_motion(self.twist, dt) if self.integrator.twist_known else None
             motion = self.front.predicted_motion(gray, dt, model, held)
             self.front.track(gray, motion, mounting, model,
-                             last_is_reference=self._ref_stamp == previous)
+                             last_is_reference=self._ref_stamp == previous,
+                             shutter=self.shutter, dt=dt)
         t_track = time.perf_counter()
         result = self._estimate(stamp, t0, previous, reference_image)
         result.timing_ms['track'] = 1e3 * (t_track - t0)
@@ -411,13 +413,19 @@ class VisualOdometry:
         # A rolling shutter: each track's motion is the frame's stretched by its rows' times.
         dt = stamp - self._ref_stamp
         stretch = self.shutter.stretch(ref_px[ok, 1], cur_px[ok, 1], self.camera.height, dt)
+        # ... and by how its twist changes over the pair (the last two pairs' rate of change).
+        rate = None if stretch is None else self._twist_rate()
+        p1_ok = p1[ok]
+        if rate is not None:
+            p1_ok = accelerated(p1_ok, self._row_times(ref_px[ok, 1], cur_px[ok, 1]), dt, rate,
+                                self.twist)
         t_pose = time.perf_counter()
         try:
             if self.ransac_method == 'opencv_homography':
                 est = planar = self._estimate_with_opencv(p1[ok], m2[ok], model)
             else:
                 est = estimate_motion(
-                    p1[ok], p2[ok], m2[ok], model, method=self.ransac_method,
+                    p1_ok, p2[ok], m2[ok], model, method=self.ransac_method,
                     threshold_px=self._hypothesis_threshold(stamp),
                     confidence=self.ransac_confidence,
                     circular_refine=self.circular_refine, rng=self._rng, stretch=stretch)
@@ -425,15 +433,24 @@ class VisualOdometry:
                 if self._tilt_filter is not None:
                     # The standstill test's planar motion, at the inlier threshold (the
                     # hypotheses' is wider here; the test's thresholds are the rigid model's).
-                    planar = self._planar_at_inlier_threshold(est, p1[ok], m2[ok], model,
+                    planar = self._planar_at_inlier_threshold(est, p1_ok, m2[ok], model,
                                                               stretch)
                     rays_1, m_2 = rays1[ok], m2[ok]
                     if stretch is not None:
                         # The attitude and local-ground refinements see a global shutter:
-                        # each observation moved to its frame's stamp by the 3-DoF motion.
-                        rays_1, m_2 = self._at_stamps(
-                            est.motion, (p1[ok], p2[ok]), (ref_px[ok, 1], cur_px[ok, 1]), dt,
-                            model)
+                        # each observation moved to its frame's stamp by the 3-DoF motion,
+                        # then again by the motion they refine from it.
+                        deskew = ((p1[ok], p2[ok]), (ref_px[ok, 1], cur_px[ok, 1]), dt, model,
+                                  rate)
+                        rays_1, m_2 = self._at_stamps(est.motion, *deskew)
+                        first = self._trial_refine(est, rays_1, m_2, model, stamp)
+                        # The twist's rate of change from the last pair to this one (half a
+                        # pair late, not one): with a twist changing linearly it is exact.
+                        later = self.integrator.twist_at_stamp.rate_to(self._ref_stamp, stamp,
+                                                                       first.motion)
+                        if rate is not None and later is not None:
+                            deskew = (*deskew[:-1], later)
+                        rays_1, m_2 = self._at_stamps(first.motion, *deskew)
                     est = self._refine_tilted(est, rays_1, m_2, model, stamp)
             self._require_inliers(est.inliers)
         except PoseEstimationError as err:
@@ -478,9 +495,9 @@ class VisualOdometry:
             self.ground.advance(est.motion)
         self._ref_stamp = stamp
         # Tracks far off the motion are obstacles or mismatches: free their grid cells.
-        errors = transfer_errors(est.motion, p1[ok], m2[ok], model, stretch)
+        errors = transfer_errors(est.motion, p1_ok, m2[ok], model, stretch)
         if self.readout_calibrator is not None:
-            self._learn_readout(planar, p1[ok], m2[ok], ref_px[ok, 1], cur_px[ok, 1], dt, model)
+            self._learn_readout(planar, p1_ok, m2[ok], ref_px[ok, 1], cur_px[ok, 1], dt, model)
         self.front.drop(idx[ok][errors > _OUTLIER_DROP * self.inlier_threshold])
         self.counters['estimated'] += 1
         used = cur_px[ok]
@@ -503,16 +520,25 @@ class VisualOdometry:
         return RansacResult(motion, covariance, inliers, est.hypotheses, rms)
 
     def _at_stamps(self, motion: np.ndarray, points: tuple[np.ndarray, np.ndarray],
-                   rows: tuple[np.ndarray, np.ndarray], dt: float,
-                   model: TransferModel) -> tuple[np.ndarray, np.ndarray]:
+                   rows: tuple[np.ndarray, np.ndarray], dt: float, model: TransferModel,
+                   rate: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(frame-1 rays, frame-2 normalized points) as a global shutter at the stamps saw them.
 
-        ``points``: the tracks' ground points in both frames; ``rows``: their pixel rows.
+        ``points``: the tracks' ground points in both frames; ``rows``: their pixel rows;
+        ``rate``: the twist's rate of change over the pair (None: constant).
         """
-        height = self.camera.height
-        m1, m2 = (at_stamp(p, self.shutter.row_time(v, height), motion, dt, model)
-                  for p, v in zip(points, rows))
+        m1, m2 = (at_stamp(p, tau, motion, dt, model, rate, centre)
+                  for p, tau, centre in zip(points, self._row_times(*rows), (-dt / 2, dt / 2)))
         return rays_through(m1), m2
+
+    def _row_times(self, v1: np.ndarray, v2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each track's rows' times relative to their frames' stamps, s."""
+        height = self.camera.height
+        return self.shutter.row_time(v1, height), self.shutter.row_time(v2, height)
+
+    def _twist_rate(self) -> np.ndarray | None:
+        """The twist's rate of change (3,) over the last two pairs if they end at the reference."""
+        return self.integrator.twist_at_stamp.rate(self._ref_stamp)
 
     def _refine_tilted(self, est: RansacResult, rays1: np.ndarray, m2: np.ndarray,
                        model: TransferModel, stamp: float) -> RansacResult:
@@ -533,6 +559,23 @@ class VisualOdometry:
         if calibrated is not None:
             self._use_mounting(calibrated)
         return est
+
+    def _trial_refine(self, est: RansacResult, rays1: np.ndarray, m2: np.ndarray,
+                      model: TransferModel, stamp: float) -> RansacResult:
+        """The tilted refinement of ``est``, leaving the filter as it was (learns nothing)."""
+        tilt = self._tilt_filter
+        state, calibrator = copy.copy(vars(tilt)), copy.copy(vars(tilt.calibrator))
+        try:
+            return tilt.refine(
+                est, rays1, m2, self.mounting, model, dt=stamp - self._ref_stamp,
+                inlier_threshold=self.inlier_threshold,
+                start_threshold=self._hypothesis_threshold(stamp),
+                min_inliers=self.min_inliers)[0]
+        finally:
+            vars(tilt).clear()
+            vars(tilt).update(state)
+            vars(tilt.calibrator).clear()
+            vars(tilt.calibrator).update(calibrator)
 
     @property
     def _learning_readout(self) -> bool:
