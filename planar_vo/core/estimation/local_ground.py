@@ -34,7 +34,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from planar_vo.core.errors import PoseEstimationError
-from planar_vo.core.estimation.attitude import body_tilt
 from planar_vo.core.geometry.camera import Mounting
 
 __all__ = ['SURFACE_TERMS', 'GroundPrior', 'LocalGroundResult', 'refine_on_local_ground',
@@ -43,7 +42,7 @@ __all__ = ['SURFACE_TERMS', 'GroundPrior', 'LocalGroundResult', 'refine_on_local
 SURFACE_TERMS = ('grade', 'cross_slope', 'curvature', 'twist', 'cross_curvature')
 _N = 11  # x, y, yaw, roll, pitch, dh of frame 2, then the five surface terms
 _MIN_SIGMA_PX = 0.05  # residuals below this (px) are not believed: KLT is never better
-_E_Z = np.array([0.0, 0.0, 1.0])
+_CONVERGED = 1e-6  # a step this small (its squared size in the estimate's sigmas) ends it
 
 
 @dataclass(frozen=True)
@@ -70,22 +69,82 @@ class LocalGroundResult:
     rms_px: float
 
 
-def _coefficients(surface: np.ndarray, a: float, cy: float, d: np.ndarray):
-    """A s^2 + B s + C = 0 for the ray ``c + s d`` on the surface, and their derivatives.
+# d lifted / d yaw as a map of lifted itself: (q1, -q0, 0).
+_YAW_T = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
 
-    ``a``: camera x minus the hinge; ``cy``: camera y; the camera height is added by the
-    caller (C's constant). Returns A, B, C (N,) and dA, dB, dC (5, N | scalar).
+
+class _Transfer:
+    """The transfer over the surface for one frame pair, its per-pair terms computed once.
+
+    The ray's quadratic on the surface is linear in the surface terms with coefficients that
+    depend on the rays only, and the point in camera 2 and its derivatives are fixed 3x3 maps
+    of the ground point ``c1 + s v1``: an evaluation is one (12, 3) @ (3, N) product and a
+    few elementwise passes. Gauss-Newton's evaluations were most of the local ground's cost.
     """
-    ep, er, k, kxy, kyy = surface
-    dx, dy, dz = d
-    A = 0.5 * k * dx * dx + kxy * dx * dy + 0.5 * kyy * dy * dy
-    B = ep * dx + er * dy + k * a * dx + kxy * (a * dy + cy * dx) + kyy * cy * dy - dz
-    C = ep * a + er * cy + 0.5 * k * a * a + kxy * a * cy + 0.5 * kyy * cy * cy
-    zero = np.zeros_like(dx)
-    dA = np.stack([zero, zero, 0.5 * dx * dx, dx * dy, 0.5 * dy * dy])
-    dB = np.stack([dx, dy, a * dx, a * dy + cy * dx, cy * dy])
-    dC = np.array([a, cy, 0.5 * a * a, a * cy, 0.5 * cy * cy])
-    return A, B, C, dA, dB, dC
+
+    def __init__(self, v1: np.ndarray, m2: np.ndarray, mounting: Mounting, hinge: float):
+        """``v1``: (3, N) frame-1 rays in base_link; ``m2``: (2, N) seen in frame 2."""
+        self.v1, self.m2 = v1, m2
+        self.c1 = mounting.position
+        self.optical_from_base = mounting.base_from_optical.T
+        self.offset = np.zeros(12)  # o = G lifted - optical_from_base c1
+        self.offset[:3] = -self.optical_from_base @ self.c1
+        a, cy = self.c1[0] - hinge, self.c1[1]
+        dx, dy = v1[0], v1[1]
+        # A s^2 + B s + C = 0 for the ray c1 + s v1 on the surface: A, B and C are these
+        # dotted with the surface terms (B less v1's z, C less the camera height).
+        zero = np.zeros_like(dx)
+        self.dA = np.stack([zero, zero, 0.5 * dx * dx, dx * dy, 0.5 * dy * dy])
+        self.dB = np.stack([dx, dy, a * dx, a * dy + cy * dx, cy * dy])
+        self.dC = np.array([a, cy, 0.5 * a * a, a * cy, 0.5 * cy * cy])
+
+    def __call__(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Residuals (2, N), Jacobian (11, 2, N) and validity (N,) at ``params``."""
+        x, y, yaw, roll, pitch, dh = params[:6]
+        surface = params[6:]
+        v1 = self.v1
+        A = surface @ self.dA
+        B = surface @ self.dB - v1[2]
+        C = surface @ self.dC - self.c1[2]
+        disc = B * B - 4.0 * A * C
+        hit = (disc > 0.0) & (B > 1e-9)
+        root = np.sqrt(np.where(hit, disc, 1.0))
+        s = np.where(hit, -2.0 * C / np.where(hit, B + root, 1.0), 0.0)
+        hit &= s > 0.0
+        # ds/dtheta = -(s^2 dA + s dB + dC) / (2 A s + B), theta the surface terms
+        ds = (s * self.dA + self.dB) * s + self.dC[:, None]
+        ds /= -np.where(hit, 2.0 * A * s + B, 1.0)
+        # The ground point P = c1 + s v1 in base_link 2 before its rotation is lifted =
+        # Y (P - (x, y, dh)), Y the yaw; camera 2 sees o = G lifted - rot c1, G = rot R^T, rot
+        # optical_from_base and R = body_tilt(roll, pitch) = Ry Rx, about the contacts.
+        c, sn = np.cos(yaw), np.sin(yaw)
+        cp, sp, cr, sr = np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+        ry_t = np.array([[cp, 0.0, -sp], [0.0, 1.0, 0.0], [sp, 0.0, cp]])
+        rx_t = np.array([[1.0, 0.0, 0.0], [0.0, cr, sr], [0.0, -sr, cr]])
+        d_ry_t = np.array([[-sp, 0.0, -cp], [0.0, 0.0, 0.0], [cp, 0.0, -sp]])
+        d_rx_t = np.array([[0.0, 0.0, 0.0], [0.0, -sr, cr], [0.0, -cr, -sr]])
+        yaw_t = np.array([[c, sn, 0.0], [-sn, c, 0.0], [0.0, 0.0, 1.0]])
+        rot = self.optical_from_base
+        G = rot @ rx_t @ ry_t
+        # Rows: o, then its derivatives by yaw, roll and pitch, each a map of P.
+        maps = np.vstack([G, G @ _YAW_T, rot @ d_rx_t @ ry_t, rot @ rx_t @ d_ry_t]) @ yaw_t
+        along = maps @ v1
+        out = along * s
+        out += (maps @ (self.c1 - np.array([x, y, dh])) + self.offset)[:, None]
+        o = out[:3]
+        front = (o[2] > 1e-9) & hit
+        iz = np.divide(1.0, o[2], out=np.zeros_like(o[2]), where=front)
+        m = o[:2] * iz
+        do = np.empty((_N, 3, len(s)))
+        d_point = maps[:3]  # d o / d P: x and y move P by minus one, dh lifts it
+        do[0] = -d_point[:, 0:1]
+        do[1] = -d_point[:, 1:2]
+        do[2:5] = out[3:].reshape(3, 3, -1)
+        do[5] = -d_point[:, 2:3]
+        np.multiply(ds[:, None, :], along[:3], out=do[6:])
+        J = do[:, :2] - do[:, 2:3] * m
+        J *= iz
+        return m - self.m2, J, front
 
 
 def surface_residuals(params: np.ndarray, v1: np.ndarray, m2: np.ndarray, mounting: Mounting,
@@ -99,50 +158,25 @@ def surface_residuals(params: np.ndarray, v1: np.ndarray, m2: np.ndarray, mounti
         mounting: camera 1 in base_link 1 (camera 2 is it after the motion and rotation).
         hinge: x (m, base_link) where the surface leaves the wheel plane (the front axle).
     """
-    x, y, yaw, roll, pitch, dh = params[:6]
-    surface = params[6:]
-    c1 = mounting.position
-    a, cy = c1[0] - hinge, c1[1]
-    A, B, C, dA, dB, dC = _coefficients(surface, a, cy, v1)
-    C = C - c1[2]
-    disc = B * B - 4.0 * A * C
-    hit = (disc > 0.0) & (B > 1e-9)
-    root = np.sqrt(np.where(hit, disc, 1.0))
-    s = np.where(hit, -2.0 * C / np.where(hit, B + root, 1.0), 0.0)
-    hit &= s > 0.0
-    P = c1[:, None] + s * v1  # (3, N) the ground points in base_link 1
-    # ds/dtheta = -(s^2 dA + s dB + dC) / (2 A s + B), theta the surface terms
-    ds = -(s * s * dA + s * dB + dC[:, None]) / np.where(hit, 2.0 * A * s + B, 1.0)
-    c, sn = np.cos(yaw), np.sin(yaw)
-    rz_t = np.array([[c, sn], [-sn, c]])
-    q = rz_t @ (P[:2] - np.array([[x], [y]]))
-    Pb2 = np.vstack([q, P[2:3]])  # in base_link 2, before its rotation
-    R = body_tilt(roll, pitch)  # frame 2 rotated about the contacts (base_link's origin)
-    cp, sp, cr, sr = np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
-    ry_t = np.array([[cp, 0.0, -sp], [0.0, 1.0, 0.0], [sp, 0.0, cp]])
-    rx_t = np.array([[1.0, 0.0, 0.0], [0.0, cr, sr], [0.0, -sr, cr]])
-    d_ry_t = np.array([[-sp, 0.0, -cp], [0.0, 0.0, 0.0], [cp, 0.0, -sp]])
-    d_rx_t = np.array([[0.0, 0.0, 0.0], [0.0, -sr, cr], [0.0, -cr, -sr]])
-    lifted = Pb2 - (dh * _E_Z)[:, None]
-    u = R.T @ lifted - c1[:, None]  # camera 2 = R c1 + dh: u = R^T (Pb2 - dh z) - c1
-    optical_from_base = mounting.base_from_optical.T
-    o = optical_from_base @ u
-    front = (o[2] > 1e-9) & hit
-    iz = np.divide(1.0, o[2], out=np.zeros_like(o[2]), where=front)
-    m = o[:2] * iz
-    G = optical_from_base @ R.T
-    do = np.empty((_N, 3, o.shape[1]))
-    Gq = G[:, :2]
-    do[0:2] = -(Gq @ rz_t).T[:, :, None]
-    do[2] = Gq @ np.stack([q[1], -q[0]])
-    do[3] = optical_from_base @ (d_rx_t @ (ry_t @ lifted))
-    do[4] = optical_from_base @ (rx_t @ (d_ry_t @ lifted))
-    do[5] = -G[:, 2][:, None]
-    G_p = np.hstack([Gq @ rz_t, G[:, 2:3]])  # d o / d P (3, 3)
-    for j in range(5):
-        do[6 + j] = G_p @ (v1 * ds[j])
-    J = (do[:, :2] - do[:, 2:3] * m) * iz
-    return m - m2, J, front
+    return _Transfer(v1, m2, mounting, hinge)(params)
+
+
+def _cauchy_curvature(J: np.ndarray, r: np.ndarray, weights: np.ndarray, u: np.ndarray,
+                      scale: float) -> np.ndarray:
+    """What the Cauchy weights' own change adds to Gauss-Newton's Hessian (11, 11).
+
+    Reweighted least squares (the weights held at each step) creeps to the M-estimator's
+    minimum by a constant factor a step (~0.6: its 12 steps left it up to 0.17 sigma short on
+    bags/default); with the weights' derivative the steps are Newton's. Along each residual
+    the weight ``w`` becomes ``w (1 - u) / (1 + u)``, ``u`` its squared size over the Cauchy
+    scale, but never less than ``w / 2``: then no step is more than twice the reweighted
+    one, which still cannot raise the cost (half the Hessian still bounds it), where a
+    Hessian let go to zero along residuals was singular on a start. ``scale``: the Cauchy
+    scale times the noise.
+    """
+    along = np.minimum(2.0 * weights, 0.5 / np.maximum(u, 1e-12))
+    gradients = J[:, 0] * r[0] + J[:, 1] * r[1]  # (11, N) each residual's J^T r
+    return (gradients * (-weights * along / scale)) @ gradients.T
 
 
 def refine_on_local_ground(
@@ -154,7 +188,11 @@ def refine_on_local_ground(
 
     The inliers are chosen again at every step, the threshold halving from
     ``start_threshold_px`` (a jolt moves every point off the start) down to ``threshold_px``.
-    Each inlier weighs ``1 / (1 + (r / (cauchy sigma))^2)``, sigma the inliers' noise.
+    Each inlier weighs ``1 / (1 + (r / (cauchy sigma))^2)``, sigma the inliers' noise. Once
+    the threshold is down and the inliers no longer change, the steps are Newton's on the
+    Cauchy cost (:func:`_cauchy_curvature`), and a step under :data:`_CONVERGED` ends it:
+    on bags/default 12.3 evaluations a pair instead of 13, and the answer seven times closer
+    to the minimum (median 0.0004 sigma, main's 0.0028).
 
     Args:
         motion: (3,) starting motion (RANSAC's).
@@ -175,9 +213,10 @@ def refine_on_local_ground(
     wide = max(threshold_px, start_threshold_px or threshold_px)
     iterations += int(np.ceil(np.log2(wide / threshold_px)))
     inliers = np.zeros(len(v1), bool)
+    transfer = _Transfer(v1_t, m2_t, mounting, hinge)
     for i in range(iterations + 1):
         threshold = max(threshold_px, wide * 0.5 ** i)
-        r, J, front = surface_residuals(params, v1_t, m2_t, mounting, hinge)
+        r, J, front = transfer(params)
         squared = r[0] * r[0] + r[1] * r[1]
         selected = front & (squared < (threshold / focal_px) ** 2)
         changed = not np.array_equal(selected, inliers)
@@ -186,15 +225,21 @@ def refine_on_local_ground(
         if count < 3:
             raise PoseEstimationError(f'only {count} correspondences fit the local ground')
         sigma2 = max(float(squared[inliers].sum()) / max(2 * count - _N, 1), floor2)
-        weights = inliers / (1.0 + squared / (cauchy * cauchy * sigma2))
+        scale2 = cauchy * cauchy * sigma2
+        weights = inliers / (1.0 + squared / scale2)
         J_w = (J * weights).reshape(_N, -1)
         H = J_w @ J.reshape(_N, -1).T / sigma2 + info
         g = J_w @ r.reshape(-1) / sigma2 + info @ (params - mean)
         if i == iterations:
             break
-        step = -np.linalg.solve(H, g)
+        settled = not changed and threshold == threshold_px
+        # Newton's steps once the inliers have settled; reweighting's until then (far from
+        # the minimum, as on a jolt, they are the safer).
+        curvature = (_cauchy_curvature(J, r, weights, squared / scale2, scale2 * sigma2)
+                     if settled else 0.0)
+        step = -np.linalg.solve(H + curvature, g)
         params = params + step
-        if np.max(np.abs(step)) < 1e-7 and not changed and threshold == threshold_px:
+        if settled and step @ H @ step < _CONVERGED:
             break
     # The weighted fit's covariance, the sandwich of an M-estimator: the weights lower the
     # information the data give, and lower the noise that reaches the estimate as much.
