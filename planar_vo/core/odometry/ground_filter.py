@@ -196,50 +196,12 @@ class LocalGroundFilter:
         prior = GroundPrior(np.diag(self.rate2 * dt * dt), self.surface,
                             self.surface_cov + np.diag(step ** 2))
         v1 = rays1 @ camera.base_from_optical.T
-        try:
-            fit = refine_on_local_ground(
-                est.motion, v1, m2, camera, prior, focal_px=model.focal_px,
-                threshold_px=inlier_threshold, start_threshold_px=start_threshold,
-                hinge=self.hinge, cauchy=_CAUCHY)
-        except PoseEstimationError:
-            # A jolt beyond the learned rate (a wheel hitting a bump turns the car 1-2 deg
-            # in a frame): once more with the rate's upper bound, from a wider threshold.
-            jolt = GroundPrior(np.diag(self.rates ** 2 * dt * dt), prior.surface,
-                               prior.surface_cov)
-            wide = jolt_threshold(self.rates ** 2, inlier_threshold, model.focal_px, dt)
-            fit = refine_on_local_ground(
-                est.motion, v1, m2, camera, jolt, focal_px=model.focal_px,
-                threshold_px=inlier_threshold, start_threshold_px=max(wide, start_threshold),
-                hinge=self.hinge, cauchy=_CAUCHY)
-            if np.any(np.abs(fit.rotation[:2]) > JOLT_SIGMAS * self.rates[:2] * dt):
-                # No vehicle turns that fast: an image that matches nothing (a shifted or
-                # corrupt frame) fitted by a rotation.
-                raise PoseEstimationError(
-                    'no motion fits the local ground, even as a jolt') from None
-        keep = off_surface_bands(fit, v1, m2, camera, self.hinge, model.focal_px)
-        # The road's history is not kept where a band went: the smooth surface is not the
-        # road there (all four terrains with a sprung body: 0.50 -> 0.44 %; marking every
-        # sample of a pair whose surface jumped kept the body's tilt unread on 2/3 of it).
-        rough = np.zeros(len(SAMPLES_AHEAD), bool)
-        if keep is not None:
-            went = _wheel_plane_distance(camera, v1[~keep])
-            rough = np.any(np.abs(went[None, :] - (self.hinge + SAMPLES_AHEAD)[:, None])
-                           < _BAND_REACH, axis=1)
-        if keep is not None and np.count_nonzero(keep) >= min_inliers:
-            try:
-                again = refine_on_local_ground(
-                    est.motion, v1[keep], m2[keep], camera, prior, focal_px=model.focal_px,
-                    threshold_px=inlier_threshold, start_threshold_px=start_threshold,
-                    hinge=self.hinge, cauchy=_CAUCHY)
-            except PoseEstimationError:
-                again = None
-            if (again is not None and np.count_nonzero(again.inliers) >= min_inliers
-                    and _consistent(again, fit)):
-                inliers = np.zeros(len(v1), bool)
-                inliers[np.flatnonzero(keep)[again.inliers]] = True
-                weights = np.zeros(len(v1))
-                weights[keep] = again.weights
-                fit = dataclasses.replace(again, inliers=inliers, weights=weights)
+        fit = self._fit(est.motion, v1, m2, camera, prior, model.focal_px, dt=dt,
+                        inlier_threshold=inlier_threshold, start_threshold=start_threshold)
+        fit, rough = self._without_bands(fit, est.motion, v1, m2, camera, prior,
+                                         model.focal_px, inlier_threshold=inlier_threshold,
+                                         start_threshold=start_threshold,
+                                         min_inliers=min_inliers)
         count = int(np.count_nonzero(fit.inliers))
         if count < min_inliers:
             raise PoseEstimationError(f'{count} inliers, fewer than {min_inliers}')
@@ -267,6 +229,67 @@ class LocalGroundFilter:
             motion_cov = motion_cov + applied
         return RansacResult(fit.motion, motion_cov, fit.inliers, est.hypotheses,
                             fit.rms_px), calibrated
+
+    def _fit(self, motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
+             prior: GroundPrior, focal_px: float, *, dt: float, inlier_threshold: float,
+             start_threshold: float) -> LocalGroundResult:
+        """The pair refined over the local ground; once more through a jolt if it is lost."""
+        try:
+            return refine_on_local_ground(
+                motion, v1, m2, camera, prior, focal_px=focal_px,
+                threshold_px=inlier_threshold, start_threshold_px=start_threshold,
+                hinge=self.hinge, cauchy=_CAUCHY)
+        except PoseEstimationError:
+            # A jolt beyond the learned rate (a wheel hitting a bump turns the car 1-2 deg
+            # in a frame): once more with the rate's upper bound, from a wider threshold.
+            jolt = GroundPrior(np.diag(self.rates ** 2 * dt * dt), prior.surface,
+                               prior.surface_cov)
+            wide = jolt_threshold(self.rates ** 2, inlier_threshold, focal_px, dt)
+            fit = refine_on_local_ground(
+                motion, v1, m2, camera, jolt, focal_px=focal_px,
+                threshold_px=inlier_threshold, start_threshold_px=max(wide, start_threshold),
+                hinge=self.hinge, cauchy=_CAUCHY)
+            if np.any(np.abs(fit.rotation[:2]) > JOLT_SIGMAS * self.rates[:2] * dt):
+                # No vehicle turns that fast: an image that matches nothing (a shifted or
+                # corrupt frame) fitted by a rotation.
+                raise PoseEstimationError(
+                    'no motion fits the local ground, even as a jolt') from None
+            return fit
+
+    def _without_bands(self, fit: LocalGroundResult, motion: np.ndarray, v1: np.ndarray,
+                       m2: np.ndarray, camera: Mounting, prior: GroundPrior, focal_px: float,
+                       *, inlier_threshold: float, start_threshold: float,
+                       min_inliers: int) -> tuple[LocalGroundResult, np.ndarray]:
+        """``fit`` refined again without the bands off its surface (when that holds).
+
+        Also returns which of the road history's samples ahead (SAMPLES_AHEAD) a band covers.
+        """
+        keep = off_surface_bands(fit, v1, m2, camera, self.hinge, focal_px)
+        # The road's history is not kept where a band went: the smooth surface is not the
+        # road there (all four terrains with a sprung body: 0.50 -> 0.44 %; marking every
+        # sample of a pair whose surface jumped kept the body's tilt unread on 2/3 of it).
+        rough = np.zeros(len(SAMPLES_AHEAD), bool)
+        if keep is None:
+            return fit, rough
+        went = _wheel_plane_distance(camera, v1[~keep])
+        rough = np.any(np.abs(went[None, :] - (self.hinge + SAMPLES_AHEAD)[:, None])
+                       < _BAND_REACH, axis=1)
+        if np.count_nonzero(keep) < min_inliers:
+            return fit, rough
+        try:
+            again = refine_on_local_ground(
+                motion, v1[keep], m2[keep], camera, prior, focal_px=focal_px,
+                threshold_px=inlier_threshold, start_threshold_px=start_threshold,
+                hinge=self.hinge, cauchy=_CAUCHY)
+        except PoseEstimationError:
+            return fit, rough
+        if np.count_nonzero(again.inliers) < min_inliers or not _consistent(again, fit):
+            return fit, rough
+        inliers = np.zeros(len(v1), bool)
+        inliers[np.flatnonzero(keep)[again.inliers]] = True
+        weights = np.zeros(len(v1))
+        weights[keep] = again.weights
+        return dataclasses.replace(again, inliers=inliers, weights=weights), rough
 
     def advance(self, motion: np.ndarray) -> None:
         """The last refined pair's motion was taken: remember its road, move on.
