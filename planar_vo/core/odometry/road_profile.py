@@ -25,7 +25,6 @@ import numpy as np
 __all__ = ['SAMPLES_AHEAD', 'RoadProfile']
 
 SAMPLES_AHEAD = np.array([0.5, 1.5, 2.5, 3.5])  # m past the hinge where a pair samples the road
-_AHEAD = SAMPLES_AHEAD
 _BINS = 3  # the wheelbase in this many parts, each needs a sample: the chord's mean gradient
 _KEEP_BEHIND = 1.0  # m behind the rear axle a sample is still kept
 _MAX_SAMPLES = 400
@@ -78,16 +77,17 @@ class RoadProfile:
         ep, er, k, kxy, _ = surface
         # The road's gradient relative to the configured camera's base plane: the pair's
         # wheel plane is that plane tilted by -tilt (nose down lowers the gradient ahead).
-        along = ep + tilt[1] + k * _AHEAD
-        across = er - tilt[0] + kxy * _AHEAD
-        basis = np.stack([np.ones_like(_AHEAD), _AHEAD])
+        along = ep + tilt[1] + k * SAMPLES_AHEAD
+        across = er - tilt[0] + kxy * SAMPLES_AHEAD
+        basis = np.stack([np.ones_like(SAMPLES_AHEAD), SAMPLES_AHEAD])
         var_along = np.einsum('in,ij,jn->n', basis, surface_cov[np.ix_([0, 2], [0, 2])], basis)
         var_across = np.einsum('in,ij,jn->n', basis, surface_cov[np.ix_([1, 3], [1, 3])], basis)
-        points = np.vstack([self.points, np.c_[hinge + _AHEAD, np.zeros_like(_AHEAD)]])
+        ahead = np.c_[hinge + SAMPLES_AHEAD, np.zeros_like(SAMPLES_AHEAD)]
+        points = np.vstack([self.points, ahead])
         gradients = np.vstack([self.gradients, self.level + np.c_[along, across]])
         variances = np.r_[self.variances, 0.5 * (var_along + var_across)]
-        rough_ = np.r_[self.rough, np.broadcast_to(rough, _AHEAD.shape)]
-        seen_level = np.vstack([self.seen_level, np.tile(self.level, (len(_AHEAD), 1))])
+        rough_ = np.r_[self.rough, np.broadcast_to(rough, SAMPLES_AHEAD.shape)]
+        seen_level = np.vstack([self.seen_level, np.tile(self.level, (len(SAMPLES_AHEAD), 1))])
         level = self.level + np.array([-rotation[1], rotation[0]])
         # Into base_link 2.
         turn = _rotation(float(motion[2])).T
