@@ -29,6 +29,7 @@ from planar_vo.core.estimation.ransac import RansacResult, TransferModel
 from planar_vo.core.geometry.camera import Mounting
 from planar_vo.core.odometry.attitude_filter import JOLT_SIGMAS, jolt_threshold
 from planar_vo.core.odometry.road_profile import SAMPLES_AHEAD, RoadProfile
+from planar_vo.core.odometry.sprung_body import SprungBody
 
 __all__ = ['LocalGroundFilter', 'off_surface_bands']
 
@@ -67,34 +68,7 @@ _IRREGULAR_INFLATION = 4.0  # its motion's covariance then grows this much
 _CALM_CURVATURE = 0.01
 _TERRAIN_CORRELATION_S = 3.0
 _SHRINK_SIGMAS = 2.0
-# The camera's tilt to its wheels from the road's history (RoadProfile). Its error, measured
-# on rigid cars (752x480, f 540 px): 0.038 deg on a flat road, 0.08 deg over grade changes
-# (the rotations integrated about 5 % short, wandering with the grade), so a floor of
-# 0.095 deg, this many pixels over the focal. How much a body really tilts is learned (its
-# variance over _BODY_MEMORY_S, less that floor): rigid cars on every rendered terrain keep
-# none of it (their results unchanged), a sprung car nearly all (0.31 -> 0.089 %).
-_TILT_NOISE_PX = 0.9
-_BODY_MEMORY_S = 5.0
-_BODY_GATE = 4.0
-_BODY_WARMUP = 20  # tilts learned before the gate applies
-_HALF_TRACK = 1.0
-# What a sprung body moves that the pair does not model, for the motion's covariance: the
-# body turns about its centre of mass, not the wheel contacts (the step's error is the
-# pivot's height times the turn: RMS over a pivot anywhere from the ground to the camera,
-# 0.58 of the camera's height), and its springs lift the camera (an error of the lift over
-# the height, of the step). Measured on the rendered `car` (twist error regressed on the
-# true body motion): 0.48 m per rad of pitch turn (pivot 0.55 m up), 0.62 per rad of roll,
-# 0.79 of the bounce over the height. The lift is integrated from each pair's height change
-# over _LIFT_MEMORY_S; its spread on rigid mounts was 1-2.2 mm, under _LIFT_FLOOR.
-_PIVOT_SPREAD = 0.58
-_LIFT_MEMORY_S = 3.0
-_LIFT_FLOOR = 0.003  # m
-# Before they are learned: a body turning 0.05 rad/s (until the road's history first reads
-# it) and lifting 5 mm (weighed as this many pairs): a car's. The first second of a sprung
-# drive was otherwise overconfident (the rendered `car`'s twist NEES 5.6 instead of 1.6).
-_BODY_PRIOR_RATE = 0.05
-_BODY_PRIOR_LIFT = 0.005
-_BODY_PRIOR_PAIRS = 5  # m either side of base_link whose remembered road the wheels stand on
+_HALF_TRACK = 1.0  # m either side of base_link whose remembered road the wheels stand on
 
 
 class LocalGroundFilter:
@@ -124,17 +98,7 @@ class LocalGroundFilter:
         """Nothing seen yet: a flat road is only the prior's best guess."""
         self.rate2 = self.rates ** 2
         self.rate_samples = 0
-        self.body_mean = np.zeros(2)  # the tilt to the wheels: its mean, rad
-        self.body_var = np.zeros(2)  # and its variance, rad^2
-        self.body_samples = 0
-        self.body_read = False  # the last pair's body tilt came from the road's history
-        self.rate_pairs = self.lift_pairs = 0
-        # Mean square of the body's (roll, pitch) rate (rad^2/s^2; the prior's until the
-        # history reads the body) and of the lift (m^2).
-        self.body_rate2 = np.full(2, _BODY_PRIOR_RATE ** 2)
-        self.body_tilt_var = np.zeros(2)  # what is not known of the body's tilt, rad^2
-        self.lift = 0.0  # m: the camera's height above its wheels, from the pairs' changes
-        self.lift2 = _BODY_PRIOR_LIFT ** 2
+        self.sprung = SprungBody.unknown()
         self.off_surface = 0.0  # share of the tracks the last pair weighed down
         self.irregular = False
         self.rough_ahead = np.zeros(len(SAMPLES_AHEAD), bool)  # the last pair's, per sample
@@ -216,7 +180,7 @@ class LocalGroundFilter:
         self._learn_rate(fit, dt)
         calibrated = None
         motion_cov = fit.covariance * (_IRREGULAR_INFLATION if self.irregular else 1.0)
-        motion_cov = motion_cov + self._body_covariance(camera, travel, dt)
+        motion_cov = motion_cov + self.sprung.covariance(camera, travel, dt, self.hinge)
         used = self.tilt_offset + self.body
         self.last_fit = (fit.measured_rotation, fit.surface, fit.surface_cov, used, dt,
                          model.focal_px, camera.position)
@@ -304,64 +268,15 @@ class LocalGroundFilter:
         self.profile = self.profile.with_pair(np.asarray(motion, dtype=float), rotation[:2],
                                               surface, surface_cov, used, self.hinge,
                                               self.rough_ahead)
-        read_before, before = self.body_read, self.body_samples
-        body = self._body_tilt(dt, focal_px)
-        self.body_read = self.body_samples > before
+        sprung, body = self.sprung.read_tilt(self.profile.camera_tilt(self.hinge, _HALF_TRACK),
+                                             self.tilt_offset, dt, focal_px)
         # The next pair's wheel plane is the camera tilted by the new body tilt: the
         # surface ahead, relative to it, tilts the other way (what the camera saw stays).
         change = body - self.body
         self.surface = self.surface + np.array([-change[1], change[0], 0.0, 0.0, 0.0])
         self.body = body
-        # The lift: the pair's height change, plus what its rotation about the wheel
-        # contacts moved the camera where the body turned (the wheels did not), fading.
-        turned = -camera[0] * change[1] + camera[1] * change[0]
-        self.lift = float(np.exp(-dt / _LIFT_MEMORY_S) * (self.lift + rotation[2] + turned))
-        self.lift_pairs += 1
-        alpha = min(max(dt / _BODY_MEMORY_S, 1.0 / (self.lift_pairs + _BODY_PRIOR_PAIRS)), 1.0)
-        self.lift2 += alpha * (self.lift ** 2 - self.lift2)
-        if read_before and self.body_read:  # the body's turn between two readings
-            self.rate_pairs += 1
-            alpha = min(max(dt / _BODY_MEMORY_S, 1.0 / self.rate_pairs), 1.0)
-            self.body_rate2 = self.body_rate2 + alpha * ((change / dt) ** 2 - self.body_rate2)
-
-    def _body_covariance(self, camera: Mounting, travel: float, dt: float) -> np.ndarray:
-        """(3, 3) covariance of the step's error from the body's unmodelled motion.
-
-        Its turn about an unknown pivot, its lift, and what is not known of its tilt (a
-        pitch error hinges the ground at the front axle: the scale's error is the hinge's
-        distance ahead of the camera over its height, per radian).
-        """
-        height = camera.height
-        pivot2 = (_PIVOT_SPREAD * height * dt) ** 2
-        lift2 = max(self.lift2 - _LIFT_FLOOR ** 2, 0.0) * (travel / height) ** 2
-        hinge2 = (travel * (self.hinge - camera.position[0]) / height) ** 2
-        return np.diag([pivot2 * self.body_rate2[1] + lift2 + hinge2 * self.body_tilt_var[1],
-                        pivot2 * self.body_rate2[0], 0.0])
-
-    def _body_tilt(self, dt: float, focal_px: float) -> np.ndarray:
-        """The camera's (roll, pitch) to its wheels beyond the static tilt (rad).
-
-        From the road's history; learns how much the body tilts. Zero when the history
-        cannot tell.
-        """
-        seen = self.profile.camera_tilt(self.hinge, _HALF_TRACK)
-        unknown = np.maximum(self.body_var - (_TILT_NOISE_PX / focal_px) ** 2, 0.0)
-        self.body_tilt_var = unknown  # until the history says more
-        if seen is None:
-            return np.zeros(2)
-        tilt, variance = seen
-        noise2 = (_TILT_NOISE_PX / focal_px) ** 2 + variance
-        deviation = tilt - self.body_mean
-        if (self.body_samples >= _BODY_WARMUP
-                and np.any(deviation ** 2 > _BODY_GATE ** 2 * (self.body_var + noise2))):
-            return np.zeros(2)
-        self.body_samples += 1
-        alpha = min(max(dt / _BODY_MEMORY_S, 1.0 / self.body_samples), 1.0)
-        self.body_mean = self.body_mean + alpha * deviation
-        self.body_var = (1.0 - alpha) * (self.body_var + alpha * deviation * deviation)
-        body2 = np.maximum(self.body_var - noise2, 0.0)
-        self.body_tilt_var = body2 * noise2 / (body2 + noise2)
-        return (tilt - self.tilt_offset) * body2 / (body2 + noise2)
+        self.sprung = sprung.moved(change, rotation[2], camera, dt,
+                                   read_before=self.sprung.tilt_read)
 
     def _learn_rate(self, fit: LocalGroundResult, dt: float) -> None:
         """How fast the vehicle really rotates, as the attitude filter learns its rate."""

@@ -1,0 +1,59 @@
+"""The sprung body learner: a rigid mount gets no tilt, a pitching body its own, a bump none."""
+
+import numpy as np
+
+from planar_vo.core.odometry.sprung_body import SprungBody
+
+FOCAL = 540.0
+DT = 0.05
+
+
+def _learn(tilts: np.ndarray, variance: float = 0.0) -> tuple[SprungBody, list[np.ndarray]]:
+    body, applied = SprungBody.unknown(), []
+    for tilt in tilts:
+        body, used = body.read_tilt((tilt, variance), np.zeros(2), DT, FOCAL)
+        applied.append(used)
+    return body, applied
+
+
+def test_a_rigid_mount_read_through_noise_applies_no_tilt():
+    rng = np.random.default_rng(0)
+    noise = 0.9 / FOCAL  # the road history's reading error the learner assumes
+    _, applied = _learn(rng.normal(0.0, noise, (400, 2)))
+    # Shrunk to nearly nothing: far below the reading noise itself.
+    applied = np.array(applied[100:])
+    assert np.sqrt(np.mean(applied ** 2)) < 0.15 * noise
+    assert np.max(np.abs(applied)) < noise
+
+
+def test_a_pitching_body_gets_its_tilt_and_the_step_its_uncertainty():
+    t = np.arange(400) * DT
+    true = np.c_[np.radians(0.6) * np.sin(2.0 * t), np.radians(1.0) * np.sin(1.3 * t + 1.0)]
+    rng = np.random.default_rng(1)
+    noise = 0.9 / FOCAL
+    body, applied = _learn(true + rng.normal(0.0, noise, true.shape))
+    error = np.array(applied[200:]) - true[200:]
+    # The applied tilt is the true one to within about the reading noise (1.7 mrad).
+    assert np.sqrt(np.mean(error ** 2)) < 1.5 * noise
+    # What is left unknown of the tilt is about that noise, not the body's swing (17 mrad).
+    assert np.all(np.sqrt(body.unknown_tilt_var) < 2.0 * noise)
+
+
+def test_a_wheel_on_a_bump_is_not_taken_for_the_body():
+    rng = np.random.default_rng(2)
+    noise = 0.9 / FOCAL
+    body, _ = _learn(rng.normal(0.0, noise, (100, 2)))
+    bump = np.array([0.0, np.radians(1.5)])  # the front wheel 7 cm up on a 2.7 m wheelbase
+    after, applied = body.read_tilt((bump, 0.0), np.zeros(2), DT, FOCAL)
+    assert np.all(applied == 0.0) and not after.tilt_read
+
+
+def test_the_lift_is_learned_from_the_height_changes():
+    body = SprungBody.unknown()
+    t = np.arange(200) * DT
+    heights = 0.015 * np.sin(2.0 * np.pi * t)  # a 1.5 cm bounce at 1 Hz
+    for dh in np.diff(heights):
+        body = body.moved(np.zeros(2), float(dh), np.array([1.2, 0.0, 1.1]), DT,
+                          read_before=False)
+    # RMS of a 1.5 cm sine is 1.06 cm (the fading memory keeps most of it).
+    assert 0.007 < np.sqrt(body.lift2) < 0.013
