@@ -14,7 +14,7 @@ from tqdm import tqdm
 
 from planar_vo.synth.lens import SynthCamera
 from planar_vo.synth.mount import CameraMount, MountingError, params_yaml
-from planar_vo.synth.ride import rotation_quaternion
+from planar_vo.synth.ride import CHASSIS, rotation_quaternion
 from planar_vo.synth.scenarios import SCENARIOS, render_scenario
 from planar_vo.synth.shutter import RollingShutter
 from planar_vo.synth.terrain import Terrain
@@ -200,7 +200,8 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                 bag.write(POSE3D_TOPIC, 'nav_msgs/msg/Odometry', ns, pose3d_msg(ts, traj, k, ns))
             bar.update()
     if params_out is not None:
-        text = params_yaml(configured)
+        # The wheels are measured with the mounting: where the road may bend from.
+        text = params_yaml(configured) + f'    wheelbase: {CHASSIS[vehicle].front_x!r}\n'
         if configured != mounting:
             text += (f'# rendered with camera_x {mounting.x!r}, camera_y {mounting.y!r}, '
                      f'camera_height {mounting.height!r},\n# camera_roll {mounting.roll!r}, '

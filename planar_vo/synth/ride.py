@@ -88,6 +88,11 @@ class Chassis:
                 for g in (self.front, self.rear, self.left, self.right, self.axle)]
 
     @property
+    def front_x(self) -> float:
+        """How far ahead of base_link the front contacts stand (m): the ``wheelbase`` param."""
+        return float(np.mean([p[0] for p in self.front]))
+
+    @property
     def length(self) -> float:
         """Distance between the front and the rear contacts' centres (m)."""
         return float(np.mean([p[0] for p in self.front]) - np.mean([p[0] for p in self.rear]))
