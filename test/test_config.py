@@ -1,4 +1,5 @@
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -64,6 +65,14 @@ def test_params_file_round_trip_and_errors(tmp_path):
 
 def test_shipped_params_file_matches_the_schema():
     assert config.load_params_file('config/planar_vo.yaml') == config.defaults()
+
+
+def test_shipped_params_file_lists_every_parameter():
+    """Users copy it and edit it: a parameter it leaves out is one they never see (the ground
+    model, the wheelbase and the rolling shutter once were)."""
+    text = Path('config/planar_vo.yaml').read_text()
+    listed = set(re.findall(r'^    ([a-z_0-9]+):', text, re.MULTILINE))
+    assert listed == set(config.defaults())
 
 
 def test_core_imports_no_ros_and_no_bag_library():
