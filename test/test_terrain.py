@@ -18,7 +18,7 @@ from planar_vo.core.estimation.local_ground import (
     refine_on_local_ground,
     surface_residuals,
 )
-from planar_vo.core.geometry.camera import Mounting
+from planar_vo.core.geometry.camera import CameraModel, Mounting
 from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry
 from planar_vo.core.odometry.surface_bands import off_surface_bands
@@ -213,3 +213,21 @@ def test_the_twist_covariance_holds_its_error_on_terrain(terrain):
               for k, r in enumerate(results) if r.estimated and k > 1]
     assert len(values) >= 95
     assert 1.0 <= np.mean(values) <= 6.0, np.mean(values)
+
+
+@pytest.mark.parametrize('mount, wheelbase, advised', [
+    (ROBOT_MOUNT, None, True), (ROBOT_MOUNT, 0.0, False), (CAR_MOUNT, None, False)])
+def test_wheels_set_inside_the_camera_view_get_advice(mount, wheelbase, advised):
+    """A small robot left at a car's wheelbase is told what to set; a car or a robot set
+    right is not. The view's near edge computed here from the pinhole (no distortion)."""
+    K = np.array([[300.0, 0.0, 320.0], [0.0, 300.0, 240.0], [0.0, 0.0, 1.0]])
+    camera = CameraModel(K, np.zeros(5), 'plumb_bob', 640, 480)
+    wheels = {} if wheelbase is None else {'wheelbase': wheelbase}
+    vo = VisualOdometry.from_params(camera, config.validate(
+        {**config.mounting_params(mount), **wheels}))
+    advice = vo.mounting_diagnostics()[1]
+    assert ('wheelbase' in advice) == advised, advice
+    if advised:
+        # The bottom row looks 20 + atan(240 / 300) = 58.7 deg down from 0.35 m: 0.21 m
+        # ahead of the camera, 0.36 m ahead of base_link.
+        assert 'from 0.36 m' in advice['wheelbase'], advice

@@ -58,6 +58,7 @@ __all__ = ['VisualOdometry']
 _MAX_FAILED_FRAMES = 3  # frames in a row without an estimate before tracking counts as lost
 _MASK_REDRAW_YAW = np.radians(0.5)
 _OUTLIER_DROP = 3.0  # tracks this many inlier thresholds off the motion are dropped
+_WHEELBASE_INSIDE_VIEW = 0.5  # m: wheels set this far inside the view get advice
 
 
 class VisualOdometry:
@@ -208,6 +209,7 @@ class VisualOdometry:
         The mounting's while self-calibration is on, the readout's while it is learned.
         """
         values, advice = self._mounting_diagnostics()
+        advice = {**advice, **self._wheelbase_advice()}
         readout = self.readout_estimate()
         if readout is not None:
             configured = self.configured_shutter.readout
@@ -217,6 +219,30 @@ class VisualOdometry:
             values['rolling_shutter_readout in use (ms)'] = f'{1e3 * self.shutter.readout:.2f}'
             advice = {**advice, **readout_advice(configured, readout)}
         return values, advice
+
+    def _wheelbase_advice(self) -> dict[str, str]:
+        """Advice when the wheels are set where the camera sees the ground.
+
+        The local ground may bend only past ``wheelbase``: set inside the view (a small
+        robot left at a car's 2.7 m), the road it sees is taken as flat. Measured on a
+        rendered robot on grades: 1.9 % instead of 0.10 %.
+        """
+        if self.ground is None:
+            return {}
+        width, height = self.camera.width, self.camera.height
+        bottom = np.c_[np.linspace(0.0, width - 1.0, 9), np.full(9, height - 1.0)]
+        points, valid = self.mounting.ground_points(rays_through(self.camera.normalize(bottom)),
+                                                    self.horizon_margin)
+        if not np.any(valid):
+            return {}
+        near = float(np.min(points[valid, 0]))
+        if self.ground.hinge <= near + _WHEELBASE_INSIDE_VIEW:
+            return {}
+        return {'wheelbase': (
+            f'wheelbase is {self.ground.hinge:.2f} m but the camera sees the ground from '
+            f'{near:.2f} m ahead of base_link: the road may bend only past the wheelbase. Set '
+            'wheelbase to where the front wheels stand (a differential-drive robot: its front '
+            'caster, or 0 when its drive wheels lead)')}
 
     def _mounting_diagnostics(self) -> tuple[dict[str, str], dict[str, str]]:
         if self._tilt_filter is None or not self._tilt_filter.self_calibrate:
