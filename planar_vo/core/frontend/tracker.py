@@ -167,18 +167,23 @@ class Tracker:
                              borderMode=cv2.BORDER_REPLICATE)
         start = predicted[near] - np.float32([0, top])
         cur = np.empty_like(predicted)
+        # The check's start, where the track came from, is within the prediction's error of
+        # where it ends: the full image alone reaches it (the same tracks kept as with the
+        # forward pass's pyramid level on every scenario and bag; half the check's time).
         cur[near], ok = self._follow(gray[top:], start.reshape(-1, 1, 2), start,
-                                     self.warped_levels, image=template)
+                                     self.warped_levels, image=template, back_levels=0)
         cur[near, 1] += top
         used = near.copy()
         used[near] = ok
         return cur, used, anchor.astype(np.float32)
 
     def _follow(self, gray: np.ndarray, prev: np.ndarray, start: np.ndarray | None,
-                levels: int, image: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                levels: int, image: np.ndarray | None = None,
+                back_levels: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """KLT of ``prev`` (N, 1, 2) into ``gray`` from ``start`` (N, 2) or from ``prev``.
 
-        ``image``: the image ``prev`` is in (default: the last one).
+        ``image``: the image ``prev`` is in (default: the last one); ``back_levels``: the
+        pyramid levels of the forward-backward check (default: ``levels``).
 
         Returns:
             (positions (N, 2), which passed the forward-backward check (N,) bool).
@@ -191,11 +196,11 @@ class Tracker:
             cur, ok, _ = cv2.calcOpticalFlowPyrLK(
                 image, gray, prev, start.reshape(-1, 1, 2).astype(np.float32),
                 flags=cv2.OPTFLOW_USE_INITIAL_FLOW, maxLevel=levels, **self._lk)
-        # The check starts where the track came from, on as many levels as the forward pass
-        # (fewer let more false tracks through when the motion is large).
+        # The check starts where the track came from, by default on as many levels as the
+        # forward pass (fewer let more false tracks through when the motion is large).
         back, ok_back, _ = cv2.calcOpticalFlowPyrLK(
             gray, image, cur, prev.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-            maxLevel=levels, **self._lk)
+            maxLevel=levels if back_levels is None else back_levels, **self._lk)
         fb = np.linalg.norm((back - prev).reshape(-1, 2), axis=1)
         h, w = gray.shape
         cur = cur.reshape(-1, 2)
