@@ -306,13 +306,13 @@ class Tracker:
         occupied = np.bincount(self._cells(self.points, shape), minlength=rows * cols)
         share = int(np.ceil(self.max_features / max(np.count_nonzero(np.bincount(
             cell, minlength=rows * cols) + occupied), 1)))
-        taken = []
-        for i in range(len(corners)):  # corners come sorted by quality
-            if occupied[cell[i]] < share:
-                occupied[cell[i]] += 1
-                taken.append(i)
-                if len(taken) == deficit:
-                    break
+        # Corners come sorted by quality: each is taken while its cell has room for it, i.e.
+        # when fewer than the room left in its cell came before it there.
+        order = np.argsort(cell, kind='stable')
+        first = np.searchsorted(cell[order], cell[order])
+        rank = np.empty(len(cell), np.int64)
+        rank[order] = np.arange(len(cell)) - first
+        taken = np.flatnonzero(rank < share - occupied[cell])[:deficit]
         return corners[taken].astype(np.float32)
 
 
