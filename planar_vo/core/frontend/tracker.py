@@ -198,16 +198,32 @@ class Tracker:
                 flags=cv2.OPTFLOW_USE_INITIAL_FLOW, maxLevel=levels, **self._lk)
         # The check starts where the track came from, by default on as many levels as the
         # forward pass (fewer let more false tracks through when the motion is large).
-        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(
-            gray, image, cur, prev.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-            maxLevel=levels if back_levels is None else back_levels, **self._lk)
-        fb = np.linalg.norm((back - prev).reshape(-1, 2), axis=1)
+        ok = ok.ravel() == 1
+        back_levels = levels if back_levels is None else back_levels
+        checked = self._check(gray, image, cur, prev, back_levels)
+        again = ok & ~checked
+        if back_levels < levels and np.any(again):
+            # Where the forward pass went beyond the fewer levels' reach back (a jolt), the
+            # forward pass's levels decide (without this, the bumps drive lost 3 frames).
+            checked[again] = self._check(gray, image, cur[again], prev[again], levels)
         h, w = gray.shape
         cur = cur.reshape(-1, 2)
-        keep = ((ok.ravel() == 1) & (ok_back.ravel() == 1) & (fb < self.fb_threshold)
-                & (cur[:, 0] >= 0) & (cur[:, 1] >= 0) & (cur[:, 0] <= w - 1)
+        keep = (ok & checked & (cur[:, 0] >= 0) & (cur[:, 1] >= 0) & (cur[:, 0] <= w - 1)
                 & (cur[:, 1] <= h - 1))
         return cur, keep
+
+    def _check(self, gray: np.ndarray, image: np.ndarray, cur: np.ndarray, prev: np.ndarray,
+               levels: int) -> np.ndarray:
+        """Which tracks pass the forward-backward check, (N,) bool.
+
+        KLT from ``cur`` in ``gray`` back into ``image`` on ``levels`` pyramid levels must
+        end within ``fb_threshold`` of ``prev`` (both (N, 1, 2)).
+        """
+        back, ok, _ = cv2.calcOpticalFlowPyrLK(
+            gray, image, cur, prev.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+            maxLevel=levels, **self._lk)
+        return (ok.ravel() == 1) & (np.linalg.norm((back - prev).reshape(-1, 2), axis=1)
+                                    < self.fb_threshold)
 
     def correspondences(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(indices, reference points, current points) of tracks seen in the reference."""
