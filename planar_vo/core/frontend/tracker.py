@@ -26,6 +26,10 @@ __all__ = ['Tracker']
 # When a prediction loses more than this share of the tracks, the motion was not the one
 # predicted (a jolt, a dropped frame): the lost ones are tracked again on the full pyramid.
 _RETRY_LOST = 0.5
+# When the check in the prewarped image on the full image alone fails more than this share
+# of the tracks (normally 0-3 %), the prediction was off (a jolt): the check is repeated on
+# the forward pass's levels.
+_JOLT_FAILED = 0.1
 
 
 class Tracker:
@@ -201,11 +205,11 @@ class Tracker:
         ok = ok.ravel() == 1
         back_levels = levels if back_levels is None else back_levels
         checked = self._check(gray, image, cur, prev, back_levels)
-        again = ok & ~checked
-        if back_levels < levels and np.any(again):
-            # Where the forward pass went beyond the fewer levels' reach back (a jolt), the
-            # forward pass's levels decide (without this, the bumps drive lost 3 frames).
-            checked[again] = self._check(gray, image, cur[again], prev[again], levels)
+        if (back_levels < levels
+                and np.count_nonzero(ok & ~checked) > _JOLT_FAILED * len(ok)):
+            # A jolt: fewer levels let more false tracks through (and keep the lost ones below
+            # the share that tracks them again); the forward pass's levels check them all.
+            checked = self._check(gray, image, cur, prev, levels)
         h, w = gray.shape
         cur = cur.reshape(-1, 2)
         keep = (ok & checked & (cur[:, 0] >= 0) & (cur[:, 1] >= 0) & (cur[:, 0] <= w - 1)
