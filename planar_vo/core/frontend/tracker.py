@@ -173,7 +173,8 @@ class Tracker:
         cur = np.empty_like(predicted)
         # The check's start, where the track came from, is within the prediction's error of
         # where it ends: the full image alone reaches it (the same tracks kept as with the
-        # forward pass's pyramid level on every scenario and bag; half the check's time).
+        # forward pass's pyramid level on the rendered scenarios and the bench bags, in half
+        # the check's time; a jolt is checked on that level, see _follow).
         cur[near], ok = self._follow(gray[top:], start.reshape(-1, 1, 2), start,
                                      self.warped_levels, image=template, back_levels=0)
         cur[near, 1] += top
