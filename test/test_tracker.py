@@ -119,6 +119,25 @@ def test_the_shallow_pyramid_from_a_prediction_keeps_the_full_pyramids_tracks():
     np.testing.assert_allclose(fast.points[in_fast], full.points[in_full], atol=0.01)
 
 
+def test_a_jolt_in_the_prewarped_image_is_checked_on_the_forward_levels():
+    """In the prewarped image the forward-backward check runs on the full image alone, which
+    lets more false tracks through when the prediction is far off (a jolt): then the check is
+    repeated on the forward pass's level. Measured here: 235 of 300 tracks on the true shift,
+    88 with the full image's check alone (its false tracks kept the share lost under the one
+    that tracks them again on the full pyramid)."""
+    img = texture(6)
+    h, w = img.shape
+    identity = np.dstack(np.meshgrid(np.arange(w, dtype=np.float32),
+                                     np.arange(h, dtype=np.float32)))  # warps nothing
+    shift = np.array([8.0, 4.0])  # the prediction's error
+    tracker = Tracker(max_features=300)
+    tracker.track(img)
+    added = tracker.replenish(np.full_like(img, 255), is_reference=True)
+    tracker.track(shifted(img, *shift), tracker.points.copy(), identity, 0)
+    _, ref, cur = tracker.correspondences()
+    assert np.count_nonzero(np.abs(cur - ref - shift).max(axis=1) < 0.05) > 0.7 * added
+
+
 def test_tracks_a_wrong_prediction_loses_are_tracked_again_on_the_full_pyramid():
     """A jolt the motion did not predict: one level from the prediction reaches none of
     the true positions, so the lost tracks are followed again from their old positions."""

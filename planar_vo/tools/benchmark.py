@@ -85,7 +85,7 @@ CURVE = (
     ('klt_window 19', {'klt_window': 19}, {}),
     ('klt_window 15', {'klt_window': 15}, {}),
     ('klt_window 11', {'klt_window': 11}, {}),
-    ('prewarped KLT on 1 pyramid level', {}, {'warped_levels': 1}),
+    ('prewarped KLT on the full image only', {}, {'warped_levels': 0}),
     ('prewarped KLT on 2 pyramid levels', {}, {'warped_levels': 2}),
     ('KLT iterations 5 (30)', {}, {'iterations': 5}),
     ('KLT iterations 2', {}, {'iterations': 2}),

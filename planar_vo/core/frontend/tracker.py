@@ -26,6 +26,10 @@ __all__ = ['Tracker']
 # When a prediction loses more than this share of the tracks, the motion was not the one
 # predicted (a jolt, a dropped frame): the lost ones are tracked again on the full pyramid.
 _RETRY_LOST = 0.5
+# When the check in the prewarped image on the full image alone fails more than this share
+# of the tracks (normally 0-3 %), the prediction was off (a jolt): the check is repeated on
+# the forward pass's levels.
+_JOLT_FAILED = 0.1
 
 
 class Tracker:
@@ -167,18 +171,24 @@ class Tracker:
                              borderMode=cv2.BORDER_REPLICATE)
         start = predicted[near] - np.float32([0, top])
         cur = np.empty_like(predicted)
+        # The check's start, where the track came from, is within the prediction's error of
+        # where it ends: the full image alone reaches it (the same tracks kept as with the
+        # forward pass's pyramid level on the rendered scenarios and the bench bags, in half
+        # the check's time; a jolt is checked on that level, see _follow).
         cur[near], ok = self._follow(gray[top:], start.reshape(-1, 1, 2), start,
-                                     self.warped_levels, image=template)
+                                     self.warped_levels, image=template, back_levels=0)
         cur[near, 1] += top
         used = near.copy()
         used[near] = ok
         return cur, used, anchor.astype(np.float32)
 
     def _follow(self, gray: np.ndarray, prev: np.ndarray, start: np.ndarray | None,
-                levels: int, image: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                levels: int, image: np.ndarray | None = None,
+                back_levels: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """KLT of ``prev`` (N, 1, 2) into ``gray`` from ``start`` (N, 2) or from ``prev``.
 
-        ``image``: the image ``prev`` is in (default: the last one).
+        ``image``: the image ``prev`` is in (default: the last one); ``back_levels``: the
+        pyramid levels of the forward-backward check (default: ``levels``).
 
         Returns:
             (positions (N, 2), which passed the forward-backward check (N,) bool).
@@ -191,18 +201,34 @@ class Tracker:
             cur, ok, _ = cv2.calcOpticalFlowPyrLK(
                 image, gray, prev, start.reshape(-1, 1, 2).astype(np.float32),
                 flags=cv2.OPTFLOW_USE_INITIAL_FLOW, maxLevel=levels, **self._lk)
-        # The check starts where the track came from, on as many levels as the forward pass
-        # (fewer let more false tracks through when the motion is large).
-        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(
-            gray, image, cur, prev.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-            maxLevel=levels, **self._lk)
-        fb = np.linalg.norm((back - prev).reshape(-1, 2), axis=1)
+        # The check starts where the track came from, by default on as many levels as the
+        # forward pass (fewer let more false tracks through when the motion is large).
+        ok = ok.ravel() == 1
+        back_levels = levels if back_levels is None else back_levels
+        checked = self._check(gray, image, cur, prev, back_levels)
+        if (back_levels < levels
+                and np.count_nonzero(ok & ~checked) > _JOLT_FAILED * len(ok)):
+            # A jolt: fewer levels let more false tracks through (and keep the lost ones below
+            # the share that tracks them again); the forward pass's levels check them all.
+            checked = self._check(gray, image, cur, prev, levels)
         h, w = gray.shape
         cur = cur.reshape(-1, 2)
-        keep = ((ok.ravel() == 1) & (ok_back.ravel() == 1) & (fb < self.fb_threshold)
-                & (cur[:, 0] >= 0) & (cur[:, 1] >= 0) & (cur[:, 0] <= w - 1)
+        keep = (ok & checked & (cur[:, 0] >= 0) & (cur[:, 1] >= 0) & (cur[:, 0] <= w - 1)
                 & (cur[:, 1] <= h - 1))
         return cur, keep
+
+    def _check(self, gray: np.ndarray, image: np.ndarray, cur: np.ndarray, prev: np.ndarray,
+               levels: int) -> np.ndarray:
+        """Which tracks pass the forward-backward check, (N,) bool.
+
+        KLT from ``cur`` in ``gray`` back into ``image`` on ``levels`` pyramid levels must
+        end within ``fb_threshold`` of ``prev`` (both (N, 1, 2)).
+        """
+        back, ok, _ = cv2.calcOpticalFlowPyrLK(
+            gray, image, cur, prev.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+            maxLevel=levels, **self._lk)
+        return (ok.ravel() == 1) & (np.linalg.norm((back - prev).reshape(-1, 2), axis=1)
+                                    < self.fb_threshold)
 
     def correspondences(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(indices, reference points, current points) of tracks seen in the reference."""
@@ -301,13 +327,13 @@ class Tracker:
         occupied = np.bincount(self._cells(self.points, shape), minlength=rows * cols)
         share = int(np.ceil(self.max_features / max(np.count_nonzero(np.bincount(
             cell, minlength=rows * cols) + occupied), 1)))
-        taken = []
-        for i in range(len(corners)):  # corners come sorted by quality
-            if occupied[cell[i]] < share:
-                occupied[cell[i]] += 1
-                taken.append(i)
-                if len(taken) == deficit:
-                    break
+        # Corners come sorted by quality: each is taken while its cell has room for it, i.e.
+        # when fewer than the room left in its cell came before it there.
+        order = np.argsort(cell, kind='stable')
+        first = np.searchsorted(cell[order], cell[order])
+        rank = np.empty(len(cell), np.int64)
+        rank[order] = np.arange(len(cell)) - first
+        taken = np.flatnonzero(rank < share - occupied[cell])[:deficit]
         return corners[taken].astype(np.float32)
 
 

@@ -391,7 +391,7 @@ class VisualOdometry:
                              last_is_reference=self._ref_stamp == previous,
                              shutter=self.shutter, dt=dt)
         t_track = time.perf_counter()
-        result = self._estimate(stamp, t0, previous, reference_image)
+        result = self._estimate(stamp, t0, previous, reference_image, mounting, model)
         result.timing_ms['track'] = 1e3 * (t_track - t0)
         if self.standstill.stationary:  # the held tracks are the reference: nothing to add
             result.tracks = len(self.tracker)
@@ -418,18 +418,19 @@ class VisualOdometry:
             self.inlier_threshold, self._model.focal_px, stamp - self._ref_stamp)
 
     def _estimate(self, stamp: float, t0: float, previous: float,
-                  reference_image: np.ndarray | None) -> FrameResult:
+                  reference_image: np.ndarray | None, mounting: Mounting,
+                  model: TransferModel) -> FrameResult:
         """Measure the motion since the reference frame and compose it (or hold still).
 
         ``reference_image``: the reference frame's image when it is the previous frame (a
-        stop may start there), else None.
+        stop may start there), else None. ``mounting``, ``model``: the frame's
+        :meth:`_current_geometry`, as the tracks were predicted with it.
         """
         idx, ref_px, cur_px = self.tracker.correspondences()
         m2 = self.tracker.points_normalized[idx]
         rays1 = rays_through(self.tracker.reference_normalized[idx])
         # Both frames seen through the attitude of the reference frame: good enough to pick
         # hypotheses and inliers; the refinement then tilts each frame on its own.
-        mounting, model = self._current_geometry()
         p1, v1 = mounting.ground_points(rays1, self.horizon_margin)
         p2, v2 = mounting.ground_points(rays_through(m2), self.horizon_margin)
         ok = v1 & v2
