@@ -525,7 +525,13 @@ class VisualOdometry:
         errors = transfer_errors(est.motion, p1_ok, m2[ok], model, stretch)
         if self.readout_calibrator is not None:
             self._learn_readout(planar, p1_ok, m2[ok], ref_px[ok, 1], cur_px[ok, 1], dt, model)
-        self.front.drop(idx[ok][errors > _OUTLIER_DROP * self.inlier_threshold])
+        drop = idx[ok][errors > _OUTLIER_DROP * self.inlier_threshold]
+        if est.motion[0] < 0.0:
+            # Reversing, the image's tracks drift above the horizon margin, never to be used
+            # again, and kept the track budget (13 of 362 usable on a rendered stop-and-go
+            # drive, and a restart): they go.
+            drop = np.union1d(drop, idx[~v2])
+        self.front.drop(drop)
         self.counters['estimated'] += 1
         used = cur_px[ok]
         return self._result(
