@@ -175,7 +175,8 @@ class LocalGroundFilter:
         # kerb ahead, not a grade or a hill), or a wheel is off the road (a jolt, this pair
         # or the last).
         jump = np.abs(fit.surface - prior.surface) / np.sqrt(np.diag(prior.surface_cov))
-        lift = max(self._wheel_lift(fit.rotation, dt), self.wheel_lift)
+        lifted = self._wheel_lift(fit.rotation, dt)
+        lift = max(lifted, self.wheel_lift)
         self.irregular = float(np.max(jump)) > _IRREGULAR_SIGMAS or lift > _IRREGULAR_LIFT
         self.rough_ahead = rough
         self._learn_rate(fit, dt)
@@ -183,7 +184,7 @@ class LocalGroundFilter:
         motion_cov = fit.covariance * (_IRREGULAR_INFLATION if self.irregular else 1.0)
         motion_cov = motion_cov + self.sprung.covariance(camera, travel, dt, self.hinge)
         motion_cov[0, 0] += (lift * travel / camera.height) ** 2
-        self.wheel_lift = self._wheel_lift(fit.rotation, dt)
+        self.wheel_lift = lifted
         used = self.tilt_offset + self.body
         self.last_fit = (fit.measured_rotation, fit.surface, fit.surface_cov, used, dt,
                          model.focal_px, camera.position)
