@@ -137,8 +137,9 @@ SCHEMA: tuple[Param, ...] = (
           'with estimate_attitude, a sprung body on flat ground).',
           choices=('local', 'plane')),
     Param('wheelbase', 2.7, 'With ground_model local: how far ahead of base_link the wheels '
-          'stand on the ground (the front axle; a differential-drive robot: its front caster '
-          'or the front of its footprint), m. The road ahead is free to bend from there.',
+          'stand on the ground (the front axle; a differential-drive robot: its front caster, '
+          'or 0 when its drive wheels lead and the caster trails), m. The road ahead is free '
+          'to bend from there.',
           0.0, 20.0),
     Param('estimate_attitude', False, "With ground_model plane: estimate the camera's pitch, "
           'roll and height change to the ground plane every frame, jointly with the motion (a '
