@@ -206,7 +206,8 @@ class VisualOdometry:
     def mounting_diagnostics(self) -> tuple[dict[str, str], dict[str, str]]:
         """(key/values for diagnostics, advice per parameter the drive says is off).
 
-        The mounting's while self-calibration is on, the readout's while it is learned.
+        The mounting's while self-calibration is on, the readout's while it is learned, and
+        the wheelbase's when it lies inside the camera's view of the ground.
         """
         values, advice = self._mounting_diagnostics()
         advice = {**advice, **self._wheelbase_advice()}
