@@ -4,6 +4,7 @@ the 3D and planar truth, and the command line. Closed forms wherever there is on
 import ast
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ import yaml
 from planar_vo import synth
 from planar_vo.io.bag import open_reader
 from planar_vo.synth import terrain as terrain_mod
+from planar_vo.synth.terrain import TerrainShape
 
 PINHOLE = synth.SynthCamera(width=320, height=240, fx=230.0, fy=230.0, cx=160.0, cy=120.0,
                             dist=(0.0, 0.0, 0.0, 0.0, 0.0))
@@ -70,6 +72,41 @@ def test_terrain_features_have_the_documented_sizes():
     across = -gx * np.sin(yaw) + gy * np.cos(yaw)  # the slope towards base_link's left
     np.testing.assert_allclose(across, 0.02, atol=5e-4)
     np.testing.assert_allclose(camber.height(x, y), -0.02 * 1.75, atol=2e-3)
+
+
+def test_other_shapes_have_their_sizes():
+    shape = TerrainShape.parse('bump_height=0.1,bump_length=0.5,max_grade=0.06,camber=0.03,'
+                               'hill_amplitude=0.5,hill_wavelength=30')
+    grades, bumps, camber, hills = synth.make_terrain('all', 0, *default_path(),
+                                                      shape=shape).parts
+    g = grades.grade(np.linspace(0, 300, 30001))
+    assert np.abs(g).max() <= 0.06 and np.abs(g).max() > 0.045
+    centre = bumps.centres[2]
+    assert float(bumps.height(centre, 3.0)) == pytest.approx(0.1)
+    assert float(bumps.height(centre + 0.26, 3.0)) < 1e-12  # 0.5 m long
+    assert float(bumps.height(centre + 0.24, 3.0)) > 0.0
+    x = np.linspace(0, 60, 600)
+    h = hills.height(*np.meshgrid(x, x - 30))
+    assert 0.45 < h.max() <= 0.5
+    spectrum = np.abs(np.fft.rfft(hills.height(x, 0 * x) - hills.height(x, 0 * x).mean()))
+    # the waves cross x at +-30 deg: along x their period is 30 m / cos(30 deg)
+    assert np.fft.rfftfreq(x.size, x[1] - x[0])[spectrum.argmax()] == pytest.approx(
+        np.cos(np.radians(30)) / 30, abs=1 / 60)
+    px, py = default_path()
+    gx, gy = camber.gradient(px, py)
+    yaw = synth.make_trajectory(synth.SCENARIOS['default'], 300, 20.0, 0).yaw
+    np.testing.assert_allclose(-gx * np.sin(yaw) + gy * np.cos(yaw), 0.03, atol=7e-4)
+    # the defaults are the documented kinds, bit for bit
+    assert synth.make_terrain('all', 0, px, py, shape=TerrainShape()) == \
+        synth.make_terrain('all', 0, px, py)
+
+
+@pytest.mark.parametrize('text, message', [
+    ('bump_height=0.5', 'outside [0, 0.2]'), ('kerb=1', 'NAME one of bump_height'),
+    ('camber=x', 'not a number'), ('', 'at least one')])
+def test_terrain_shape_errors_say_what_is_wrong(text, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        TerrainShape.parse(text)
 
 
 def test_camber_needs_a_path_along_x():

@@ -27,8 +27,10 @@ the smooth part. :class:`Composite` sums them. Heights are not shifted: the star
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -433,25 +435,72 @@ def split(terrain: Terrain) -> tuple[Terrain, float, float]:
     return FLAT, lo, hi
 
 
-def make_terrain(kind: str, seed: int = 0, path_x=None, path_y=None) -> Terrain:
+@dataclass(frozen=True)
+class TerrainShape:
+    """The sizes of each kind's features (the defaults: :data:`TERRAIN_KINDS`' descriptions).
+
+    Other shapes of the same kinds, to measure whether what was tuned on the defaults holds.
+    """
+
+    bump_height: float = 0.08  # m
+    bump_length: float = 0.7  # m along x
+    max_grade: float = 0.04  # the grades drawn within +-max_grade
+    camber: float = 0.02  # cross-slope either side of the crown
+    hill_amplitude: float = 0.3  # m
+    hill_wavelength: float = 20.0  # m
+
+    # (low, high) of each value: a vehicle can drive it and the renderer holds it
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        'bump_height': (0.0, 0.2), 'bump_length': (0.2, 3.0), 'max_grade': (0.0, 0.12),
+        'camber': (0.0, 0.06), 'hill_amplitude': (0.0, 1.0), 'hill_wavelength': (8.0, 200.0)}
+
+    @classmethod
+    def parse(cls, text: str) -> TerrainShape:
+        """``'bump_height=0.1,max_grade=0.06'``; ValueError (one line) if bad."""
+        values: dict[str, float] = {}
+        for item in filter(None, (part.strip() for part in text.split(','))):
+            name, sep, value = (part.strip() for part in item.partition('='))
+            if not sep or name not in cls.RANGES:
+                raise ValueError(f'{item!r} is not NAME=VALUE with NAME one of '
+                                 f'{", ".join(cls.RANGES)}')
+            try:
+                number = float(value)
+            except ValueError:
+                raise ValueError(f'{name}={value!r} is not a number') from None
+            low, high = cls.RANGES[name]
+            if not low <= number <= high:
+                raise ValueError(f'{name}={number:g} is outside [{low:g}, {high:g}]')
+            values[name] = number
+        if not values:
+            raise ValueError(f'give at least one NAME=VALUE with NAME one of '
+                             f'{", ".join(cls.RANGES)}')
+        return cls(**values)
+
+
+def make_terrain(kind: str, seed: int = 0, path_x=None, path_y=None,
+                 shape: TerrainShape | None = None) -> Terrain:
     """The terrain ``kind`` (a key of :data:`TERRAIN_KINDS`) for a drive along (path_x, path_y).
 
     The path (the vehicle's planar path in the world frame) is needed by ``camber`` (its
     crown line follows it) and ``all``; the others are laid out in world x, y from ``seed``.
+    ``shape``: the features' sizes (default :class:`TerrainShape`'s).
     """
     if kind not in TERRAIN_KINDS:
         raise TerrainError(f'unknown terrain {kind!r} (choose from {", ".join(TERRAIN_KINDS)})')
     if kind == 'flat':
         return FLAT
+    shape = shape or TerrainShape()
     parts = []
     if kind in ('grades', 'all'):
-        parts.append(Grades.random(seed))
+        parts.append(Grades.random(seed, max_grade=shape.max_grade))
     if kind in ('bumps', 'all'):
-        parts.append(Bumps.random(seed))
+        bumps = Bumps.random(seed, amplitude=shape.bump_height)  # random's length: the layout's
+        parts.append(dataclasses.replace(bumps, length=shape.bump_length))
     if kind in ('camber', 'all'):
         if path_x is None:
             path_x, path_y = np.array([0.0, 1.0]), np.array([0.0, 0.0])
-        parts.append(Camber.along(path_x, path_y))
+        parts.append(Camber.along(path_x, path_y, slope=shape.camber))
     if kind in ('hills', 'all'):
-        parts.append(Hills.random(seed))
+        parts.append(Hills.random(seed, amplitude=shape.hill_amplitude,
+                                  wavelength=shape.hill_wavelength))
     return parts[0] if len(parts) == 1 else Composite(tuple(parts))
