@@ -101,6 +101,17 @@ def test_other_shapes_have_their_sizes():
         synth.make_terrain('all', 0, px, py)
 
 
+def test_a_scene_rides_the_terrain_of_its_shape():
+    renderer, traj = synth.render_scenario(
+        'straight', 40, 0, rate=10.0, camera=synth.SynthCamera.scaled(160, 120),
+        terrain='bumps', obstacles=False,
+        terrain_shape=TerrainShape(bump_height=0.12, bump_length=0.5))
+    assert renderer.terrain.amplitude == 0.12 and renderer.terrain.length == 0.5
+    # the rear axle rides up to the bump's top (10 m, where the first one is)
+    over = np.abs(traj.pose3d.position[:, 0] - 10.0) < 0.3
+    assert np.any(over) and traj.pose3d.position[over, 2].max() > 0.08
+
+
 @pytest.mark.parametrize('text, message', [
     ('bump_height=0.5', 'outside [0, 0.2]'), ('kerb=1', 'NAME one of bump_height'),
     ('camber=x', 'not a number'), ('', 'at least one')])
@@ -373,6 +384,7 @@ def test_flat_bags_have_no_3d_topic(tmp_path):
 @pytest.mark.parametrize('args, message', [
     (['--terrain', 'moon'], "invalid choice: 'moon'"),
     (['--vehicle', 'bike'], "invalid choice: 'bike'"),
+    (['--terrain-shape', 'bump_height=0.5'], 'bump_height=0.5 is outside [0, 0.2]'),
 ])
 def test_cli_terrain_errors_are_one_line(tmp_path, args, message, capsys):
     with pytest.raises(SystemExit) as exc:
@@ -387,7 +399,7 @@ def test_cli_help_lists_terrains_and_vehicles(capsys):
         synth.main(['--help'])
     out = capsys.readouterr().out
     for word in ('--terrain', '--vehicle', 'grades', 'bumps', 'camber', 'hills', 'all',
-                 'diff_drive', 'pose3d'):
+                 'diff_drive', 'pose3d', '--terrain-shape', 'bump_height'):
         assert word in out
 
 

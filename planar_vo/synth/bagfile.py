@@ -17,7 +17,7 @@ from planar_vo.synth.mount import CameraMount, MountingError, params_yaml
 from planar_vo.synth.ride import CHASSIS, rotation_quaternion
 from planar_vo.synth.scenarios import SCENARIOS, render_scenario
 from planar_vo.synth.shutter import RollingShutter
-from planar_vo.synth.terrain import Terrain
+from planar_vo.synth.terrain import Terrain, TerrainShape
 from planar_vo.synth.vehicle import RIGID, Suspension, Trajectory
 
 EPOCH_NS = 1_700_000_000 * 1_000_000_000
@@ -137,17 +137,19 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                  exposure: float = 0.0, supersample: int = 1,
                  terrain: str | Terrain | None = None, vehicle: str = 'car',
                  rolling_shutter: RollingShutter | None = None,
+                 terrain_shape: TerrainShape | None = None,
                  progress: bool = False) -> SynthResult:
     """Render a scenario and write the rosbag2 bag (MCAP, zstd chunks) at ``out_path``.
 
-    ``mounting``, ``suspension``, ``exposure``, ``supersample``, ``terrain`` and ``vehicle``
-    as in :func:`render_scenario`. The images are rendered with ``mounting``; ``params_out``
-    gets it plus ``configured_error`` (the mounting a user would have configured, to test
-    calibration). On terrain (not flat) the bag also has ``/ground_truth/pose3d`` and its
-    metadata.yaml records the terrain and the vehicle (``custom_data``, key
-    ``planar_vo_synth``, a JSON object); so does a comment in ``params_out``. A
-    ``rolling_shutter`` with a readout over 0 renders each row at its own time (the stamp at
-    its ``stamp`` convention) and is recorded the same way (key ``rolling_shutter``).
+    ``mounting``, ``suspension``, ``exposure``, ``supersample``, ``terrain``, ``terrain_shape``
+    and ``vehicle`` as in :func:`render_scenario`. The images are rendered with ``mounting``;
+    ``params_out`` gets it plus ``configured_error`` (the mounting a user would have
+    configured, to test calibration). On terrain (not flat) the bag also has
+    ``/ground_truth/pose3d`` and its metadata.yaml records the terrain and the vehicle
+    (``custom_data``, key ``planar_vo_synth``, a JSON object); so does a comment in
+    ``params_out``. A ``rolling_shutter`` with a readout over 0 renders each row at its own
+    time (the stamp at its ``stamp`` convention) and is recorded the same way (key
+    ``rolling_shutter``).
     """
     from planar_vo.io.bag import BagWriter, typestore
 
@@ -158,7 +160,8 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                                      noise_sigma=noise_sigma, max_range=max_range,
                                      obstacles=obstacles, exposure=exposure,
                                      supersample=supersample, terrain=terrain,
-                                     vehicle=vehicle, rolling_shutter=rolling_shutter)
+                                     vehicle=vehicle, rolling_shutter=rolling_shutter,
+                                     terrain_shape=terrain_shape)
     ground = renderer.terrain
     shutter = None if rolling_shutter is None or rolling_shutter.global_shutter \
         else rolling_shutter

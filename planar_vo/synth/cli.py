@@ -14,7 +14,7 @@ from planar_vo.synth.lens import DISTORTION_DEFAULTS, SynthCamera
 from planar_vo.synth.mount import MountingError
 from planar_vo.synth.scenarios import SCENARIOS, VEHICLES
 from planar_vo.synth.shutter import STAMPS, RollingShutter
-from planar_vo.synth.terrain import TERRAIN_KINDS
+from planar_vo.synth.terrain import TERRAIN_KINDS, TerrainShape
 from planar_vo.synth.vehicle import Suspension
 from planar_vo.tools.cli import (
     Parser,
@@ -32,6 +32,13 @@ PROG = 'planar_vo_synth'
 def _mounting_error(s):
     try:
         return MountingError.parse(s)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def _terrain_shape(s):
+    try:
+        return TerrainShape.parse(s)
     except ValueError as err:
         raise argparse.ArgumentTypeError(str(err)) from None
 
@@ -100,6 +107,13 @@ def build_parser() -> argparse.ArgumentParser:
                         f'all). {kinds}. Grades, bumps and hills are laid out in world x, y '
                         '(the drive starts at the origin heading +x); the crown follows the '
                         'path. Off flat ground the bag also has /ground_truth/pose3d')
+    shape = TerrainShape()
+    sizes = ', '.join(f'{name} {getattr(shape, name):g} ({low:g}-{high:g})'
+                      for name, (low, high) in TerrainShape.RANGES.items())
+    p.add_argument('--terrain-shape', type=_terrain_shape, metavar='NAME=VALUE,...',
+                   help='other sizes of the terrain kinds\' features, e.g. '
+                        'bump_height=0.1,bump_length=0.5 (metres; grades and camber as '
+                        f'fractions). Default (range): {sizes}')
     vehicles = '; '.join(f'{k}: {v}' for k, v in VEHICLES.items())
     p.add_argument('--vehicle', choices=list(VEHICLES), default='car', metavar='KIND',
                    help=f'what rides the terrain on its wheels (default car). {vehicles}. '
@@ -205,6 +219,7 @@ def main(argv=None) -> int:
                            params_out=args.params_out, configured_error=args.configured_error,
                            exposure=args.exposure, supersample=args.supersample,
                            terrain=args.terrain, vehicle=args.vehicle,
+                           terrain_shape=args.terrain_shape,
                            rolling_shutter=RollingShutter(args.rolling_shutter,
                                                           args.rolling_shutter_stamp),
                            progress=not args.quiet)

@@ -26,7 +26,13 @@ from planar_vo.synth.scene import (
     make_traffic,
 )
 from planar_vo.synth.shutter import RollingShutter, row_poses
-from planar_vo.synth.terrain import TERRAIN_KINDS, Terrain, TerrainError, make_terrain
+from planar_vo.synth.terrain import (
+    TERRAIN_KINDS,
+    Terrain,
+    TerrainError,
+    TerrainShape,
+    make_terrain,
+)
 from planar_vo.synth.vehicle import (
     RIGID,
     DriveProfile,
@@ -143,7 +149,8 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
                     suspension: Suspension | None = None, noise_sigma: float = 1.5,
                     max_range: float = 60.0, obstacles: bool = True, exposure: float = 0.0,
                     supersample: int = 1, terrain: str | Terrain | None = None,
-                    vehicle: str = 'car', rolling_shutter: RollingShutter | None = None):
+                    vehicle: str = 'car', rolling_shutter: RollingShutter | None = None,
+                    terrain_shape: TerrainShape | None = None):
     """Build the scene; return ``(renderer, trajectory)``.
 
     ``terrain``: a key of :data:`TERRAIN_KINDS` or a :class:`Terrain` (default: the
@@ -151,7 +158,7 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
     the pose on a terrain (on flat ground both follow the same planar path). On terrain
     ``traj.pose3d`` is base_link's 3D pose in the world frame and (x, y, yaw) the planar
     truth along the surface (:mod:`planar_vo.synth.ride`); ``renderer.terrain`` is the
-    height field.
+    height field. ``terrain_shape``: the sizes of a named kind's features.
 
     ``mounting`` (a :class:`CameraMount` or anything with its six numbers) and ``suspension``
     default to the scenario's. ``exposure`` is the auto-exposure range (0.2: gain within
@@ -174,8 +181,8 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
     mounting = CameraMount.of(mounting or sc.mounting)
     suspension = sc.suspension if suspension is None else suspension
     traj = make_trajectory(sc.drive, frames, rate, seed)
-    ground = make_terrain(sc.terrain if terrain is None else terrain, seed, traj.x, traj.y) \
-        if not isinstance(terrain, Terrain) else terrain
+    ground = terrain if isinstance(terrain, Terrain) else make_terrain(
+        sc.terrain if terrain is None else terrain, seed, traj.x, traj.y, shape=terrain_shape)
     if not ground.flat:
         traj = ride_over(sc.drive, ground, frames, rate, seed, CHASSIS[vehicle])
     traj = mount_camera(traj, mounting, suspension, seed)
