@@ -73,6 +73,20 @@ def colcon_install(tmp_path_factory):
     return workspace
 
 
+@pytest.fixture(scope='session')
+def default_replay(tmp_path_factory):
+    """``planar_vo.tools.replay.replay`` of the bundled bag with the shipped params file, its
+    /odom written to a bag as planar_vo_replay --output does: (ReplayResult, that bag).
+    The pipeline is deterministic, so the tests that compare against this replay (the node
+    over DDS, the live session, the accuracy bars, the published twists) share one."""
+    from planar_vo.core import config
+    from planar_vo.tools.replay import replay
+    output = tmp_path_factory.mktemp('default_replay') / 'odom'
+    result = replay(resources.default_bag(), config.load_params_file(resources.default_params()),
+                    output=output)
+    return result, output
+
+
 @pytest.fixture
 def car_camera():
     """The realistic set-up: 8 degrees pitch, 1.2 m ahead of the rear axle, distortion."""
