@@ -1,5 +1,7 @@
 """Shared fixtures: synthetic planar scenes with known motion."""
 
+import collections
+import dataclasses
 import functools
 import os
 import sys
@@ -71,6 +73,20 @@ def colcon_install(tmp_path_factory):
     return workspace
 
 
+@pytest.fixture(scope='session')
+def default_replay(tmp_path_factory):
+    """``planar_vo.tools.replay.replay`` of the bundled bag with the shipped params file, its
+    /odom written to a bag as planar_vo_replay --output does: (ReplayResult, that bag).
+    The pipeline is deterministic, so the tests that compare against this replay (the node
+    over DDS, the live session, the accuracy bars, the published twists) share one."""
+    from planar_vo.core import config
+    from planar_vo.tools.replay import replay
+    output = tmp_path_factory.mktemp('default_replay') / 'odom'
+    result = replay(resources.default_bag(), config.load_params_file(resources.default_params()),
+                    output=output)
+    return result, output
+
+
 @pytest.fixture
 def car_camera():
     """The realistic set-up: 8 degrees pitch, 1.2 m ahead of the rear axle, distortion."""
@@ -84,6 +100,48 @@ def synth_camera_model(renderer):
     cam = renderer.camera
     return CameraModel(cam.k_matrix(), np.array(cam.dist), cam.distortion_model, cam.width,
                        cam.height)
+
+
+@dataclasses.dataclass(frozen=True)
+class Rendered:
+    """A rendered drive: what :func:`run_scenario` needs of the renderer, and its frames."""
+    camera: object  # renderer.camera (a synth.SynthCamera): synth_camera_model() takes this
+    mounting: object  # renderer.mounting, the true one
+    traj: object  # the trajectory (ground truth)
+    images: tuple  # renderer.render_frame(traj, k) for every k, read-only
+
+
+# Rendering costs several times what the odometry does on the frames, and several tests drive
+# the same scenario (test_consistency's drives are test_odometry's and test_mounting's too).
+# The renderer is deterministic (each frame's noise is seeded by the seed and the frame index)
+# so a frame rendered once is the frame rendered again: kept up to this many bytes of images,
+# the least recently used dropped first.
+RENDER_CACHE_BYTES = 1 << 30
+_rendered: collections.OrderedDict = collections.OrderedDict()
+
+
+def rendered(scenario, frames, seed=0, **kw):
+    """``synth.render_scenario(scenario, frames, seed, **kw)`` and every frame rendered, once
+    per session for the same arguments (see RENDER_CACHE_BYTES). The images are read-only:
+    a test that changes one must copy it."""
+    from planar_vo import synth
+
+    key = (scenario, frames, seed, repr(sorted(kw.items())))
+    if key in _rendered:
+        _rendered.move_to_end(key)
+        return _rendered[key]
+    renderer, traj = synth.render_scenario(scenario, frames, seed, **kw)
+    images = []
+    for k in range(frames):
+        image = renderer.render_frame(traj, k)
+        image.setflags(write=False)
+        images.append(image)
+    drawn = Rendered(renderer.camera, renderer.mounting, traj, tuple(images))
+    _rendered[key] = drawn
+    while sum(image.nbytes for d in _rendered.values() for image in d.images) \
+            > RENDER_CACHE_BYTES and len(_rendered) > 1:
+        _rendered.popitem(last=False)
+    return drawn
 
 
 def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, camera=None,
@@ -106,18 +164,18 @@ def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, came
     from planar_vo.core import config
     from planar_vo.core.odometry import VisualOdometry
 
-    renderer, traj = synth.render_scenario(scenario, frames, seed, rate=rate, camera=camera,
-                                           mounting=mounting, suspension=suspension,
-                                           exposure=exposure, supersample=supersample,
-                                           rolling_shutter=rolling_shutter)
+    drawn = rendered(scenario, frames, seed, rate=rate, camera=camera, mounting=mounting,
+                     suspension=suspension, exposure=exposure, supersample=supersample,
+                     rolling_shutter=rolling_shutter)
+    traj = drawn.traj
     if configured is None or isinstance(configured, synth.MountingError):
-        configured = (configured or synth.MountingError()).apply(renderer.mounting)
+        configured = (configured or synth.MountingError()).apply(drawn.mounting)
     mount = configured
     params = config.validate({**config.mounting_params(mount), **(overrides or {})})
-    vo = VisualOdometry.from_params(synth_camera_model(renderer), params)
+    vo = VisualOdometry.from_params(synth_camera_model(drawn), params)
     results = []
     for k in range(frames):
-        image = renderer.render_frame(traj, k)
+        image = drawn.images[k]
         stamp = k / rate
         if corrupt is not None:
             image, stamp = corrupt(k, image, stamp)

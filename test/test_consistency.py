@@ -182,18 +182,13 @@ def odometry_twists(bag, topic):
     return out
 
 
-def test_bundled_bag_odometry_is_consistent_with_its_ground_truth_twist(tmp_path):
-    """As a user would check it: replay `bags/default` to a bag, read /odom back and compare
-    each twist message with /ground_truth/odom at the same stamp."""
-
-    from planar_vo.core import config
-    from planar_vo.tools.replay import replay
-
-    root = resources.share_dir()
-    replay(root / 'bags' / 'default', config.load_params_file(root / 'config' / 'planar_vo.yaml'),
-           output=tmp_path / 'odom')
-    published = odometry_twists(tmp_path / 'odom', '/odom')
-    truth = odometry_twists(root / 'bags' / 'default', '/ground_truth/odom')
+def test_bundled_bag_odometry_is_consistent_with_its_ground_truth_twist(default_replay):
+    """As a user would check it: replay `bags/default` to a bag (conftest.default_replay:
+    the shipped params file), read /odom back and compare each twist message with
+    /ground_truth/odom at the same stamp."""
+    _, odom_bag = default_replay
+    published = odometry_twists(odom_bag, '/odom')
+    truth = odometry_twists(resources.default_bag(), '/ground_truth/odom')
     assert len(published) == len(truth) == 90
     values = [nees(twist - truth[stamp][0], cov) for stamp, (twist, cov) in published.items()
               if cov.diagonal().max() < UNMEASURED]

@@ -6,10 +6,8 @@ import time
 import numpy as np
 import pytest
 
-from planar_vo.core import config
 from planar_vo.core.metrics import associate, metrics
 from planar_vo.tools.live_session import BagStream, LiveSession
-from planar_vo.tools.replay import replay
 from test.test_node import CONFIG, DEFAULT_BAG
 
 
@@ -38,7 +36,7 @@ def play_within_window(session, frames, window=3, timeout=60.0):
     assert session.wait_for(frames[-1][0], timeout), 'no odometry for the last frame'
 
 
-def test_node_at_real_rate_matches_replay_and_ground_truth(dds_env):
+def test_node_at_real_rate_matches_replay_and_ground_truth(dds_env, default_replay):
     stream = BagStream.read(DEFAULT_BAG)
     frames = len(stream.frames)
     session = LiveSession(CONFIG, image_type=stream.image_type)
@@ -54,7 +52,7 @@ def test_node_at_real_rate_matches_replay_and_ground_truth(dds_env):
     assert not missing, f'no odometry for {len(missing)} of {frames} frames'
     live = np.array([[m.pose.pose.position.x, m.pose.pose.position.y]
                      for m in (session.odometry(s) for s in stamps)])
-    offline = replay(DEFAULT_BAG, config.load_params_file(CONFIG))
+    offline, _ = default_replay  # replay(DEFAULT_BAG, the params file CONFIG)
     off_stamps, off_poses = offline.estimate.arrays()
     ia, ib = associate(np.array(stamps), off_stamps)
     assert len(ia) == frames

@@ -18,7 +18,6 @@ import pytest
 from planar_vo.core import config
 from planar_vo.core.metrics import associate, metrics
 from planar_vo.io import resources
-from planar_vo.tools.replay import replay
 
 CONFIG = resources.default_params()
 DEFAULT_BAG = resources.default_bag()
@@ -587,7 +586,7 @@ def test_node_b_warned_once_per_cause_and_exits_cleanly(node_b):
 
 
 # ------------------------------------------------------------------------------ node C
-def test_compressed_transport_under_namespace_and_remap(ros, ros_env, bag):
+def test_compressed_transport_under_namespace_and_remap(ros, ros_env, bag, default_replay):
     import cv2
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import CameraInfo, CompressedImage
@@ -623,7 +622,8 @@ def test_compressed_transport_under_namespace_and_remap(ros, ros_env, bag):
     # replay of the raw images (the same pipeline; JPEG's blocks move the tracks a little).
     estimate = np.array([odom_pose(o) for o in got])
     accuracy = metrics(estimate, np.array([bag.truth[s] for s in bag.stamps]))
-    raw_stamps, raw_poses = replay(DEFAULT_BAG, config.load_params_file(CONFIG)).estimate.arrays()
+    # replay(DEFAULT_BAG, the params file CONFIG), shared (conftest.default_replay)
+    raw_stamps, raw_poses = default_replay[0].estimate.arrays()
     ia, ib = associate(np.array(bag.stamps) * 1e-9, raw_stamps)
     assert len(ia) == len(bag.stamps)
     raw = metrics(raw_poses[ib], np.array([bag.truth[s] for s in bag.stamps])[ia])

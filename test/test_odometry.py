@@ -9,7 +9,7 @@ from planar_vo.core.geometry.camera import CameraModel, Mounting
 from planar_vo.core.geometry.se2 import compose
 from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry
-from test.conftest import drive, run_scenario
+from test.conftest import drive, run_scenario, sprung_body_params
 
 
 def poses(results):
@@ -262,8 +262,14 @@ def test_klt_prewarp_takes_out_the_bias_of_windows_that_deform(scenario, frames,
     against 0.107 / 0.715, `obstacles` 0.0424 / 0.575 against 0.0664 / 1.32."""
     got = {}
     for prewarp, threshold in ((False, 1.0), (True, 0.5)):
-        results, truth = run_scenario(scenario, frames, rate=rate, overrides={
-            'klt_prewarp': prewarp, 'inlier_threshold': threshold})
+        overrides = {'klt_prewarp': prewarp, 'inlier_threshold': threshold}
+        if sprung_body_params(scenario) is None and all(
+                config.defaults()[name] == value for name, value in overrides.items()):
+            # The shipped defaults on a rigid body: the very run of drive() (the same frames,
+            # the same params), shared with test_scenarios_within_bounds and test_consistency.
+            results, truth, _ = drive(scenario, frames, rate)
+        else:
+            results, truth = run_scenario(scenario, frames, rate=rate, overrides=overrides)
         assert all(r.status in ('first', 'ok') for r in results)
         got[prewarp] = metrics(poses(results), truth)
     off, on = got[False], got[True]

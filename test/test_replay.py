@@ -18,11 +18,12 @@ REPLAY = resources.executable('planar_vo_replay')
 
 
 @pytest.fixture(scope='module')
-def default_run():
-    """The shipped params file as it is: the local ground model, self-calibrating."""
+def default_run(default_replay):
+    """The shipped params file as it is: the local ground model, self-calibrating
+    (conftest.default_replay: replay(BAG, the params file PARAMS), shared)."""
     params = config.load_params_file(PARAMS)
     assert params['ground_model'] == 'local'  # what the tests below take as the default
-    return report(replay(BAG, params))
+    return report(default_replay[0])
 
 
 @pytest.fixture(scope='module')

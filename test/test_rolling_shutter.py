@@ -248,21 +248,42 @@ def test_a_rolling_shutter_drive_is_as_accurate_as_a_global_shutter(scenario, ra
     assert plain['t_rel_percent'] > 2 * ours['t_rel_percent'], runs
 
 
-def test_the_readout_is_learned_from_a_drive_with_turns():
-    """752x480 (at 376x240 KLT's aliasing biases it about 12 % low), tight turns, 20 Hz, a
-    30 ms readout, configured as a global shutter, the shipped ground model (local).
+@pytest.fixture(scope='module')
+def tight_rolling_shutter_drive(tmp_path_factory):
+    """752x480 (at 376x240 KLT's aliasing biases the readout about 12 % low), tight turns,
+    20 Hz, a 30 ms readout, rendered once into a bag (raw mono8 images: the rendered frames
+    byte for byte) whose params file is a global shutter and 0.5 deg off in pitch and roll.
+    (bag, params file, SynthResult: the true mounting and the trajectory)."""
+    out = tmp_path_factory.mktemp('rolling_shutter')
+    bag, params = out / 'bag', out / 'in.yaml'
+    result = synth.generate_bag(bag, 'tight', frames=240, rate=20.0,
+                                camera=synth.SynthCamera.scaled(752, 480), params_out=params,
+                                configured_error=synth.MountingError(pitch=0.5, roll=-0.5),
+                                rolling_shutter=RollingShutter(0.03))
+    return bag, params, result
+
+
+def test_the_readout_is_learned_from_a_drive_with_turns(tight_rolling_shutter_drive):
+    """tight_rolling_shutter_drive's frames with the true mounting, configured as a global
+    shutter, the shipped ground model (local).
     Measured: 30.9 ms over 28 m (the plane model, before the tilt was freed: 28.9)."""
     from planar_vo.core.odometry import VisualOdometry
+    from planar_vo.io.bag import open_reader
 
     from .conftest import synth_camera_model
-    renderer, traj = synth.render_scenario('tight', 240, 0, rate=20.0,
-                                           camera=synth.SynthCamera.scaled(752, 480),
-                                           rolling_shutter=RollingShutter(0.03))
-    params = config.validate({**config.mounting_params(renderer.mounting),
+    bag, _, result = tight_rolling_shutter_drive
+    traj = result.trajectory
+    params = config.validate({**config.mounting_params(result.mounting),
                               'learn_rolling_shutter': True})
-    vo = VisualOdometry.from_params(synth_camera_model(renderer), params)
-    for k in range(len(traj.t)):
-        vo.process(renderer.render_frame(traj, k), k / 20.0)
+    vo = VisualOdometry.from_params(synth_camera_model(result), params)
+    with open_reader(bag) as reader:
+        connections = [c for c in reader.connections if c.topic == synth.IMAGE_TOPIC]
+        for k, (c, _, raw) in enumerate(reader.messages(connections)):
+            msg = reader.deserialize(raw, c.msgtype)
+            assert msg.encoding == 'mono8' and msg.step == msg.width
+            vo.process(np.frombuffer(msg.data, np.uint8).reshape(msg.height, msg.width),
+                       k / 20.0)
+    assert k + 1 == len(traj.t) == 240
     learned = vo.readout_estimate()
     assert traj.length > 25.0
     assert abs(learned.readout - 0.03) < 0.003, learned
@@ -274,17 +295,14 @@ def test_the_readout_is_learned_from_a_drive_with_turns():
         f'rolling shutter, readout {1e3 * learned.readout:.2f} ms')
 
 
-def test_calibrate_learns_the_readout(tmp_path):
+def test_calibrate_learns_the_readout(tight_rolling_shutter_drive, tmp_path):
     """``planar_vo_calibrate --rolling-shutter`` on a recorded drive (the learned test's:
     752x480, tight turns, 20 Hz, 30 ms) whose params file is a global shutter and 0.5 deg off
     in pitch and roll: the readout is measured with the camera's tilt free.
     Measured: 30.2 ms (std 0.3), camera_pitch 0.015 deg and camera_roll 0.005 deg
     off the truth."""
-    bag, params, out = tmp_path / 'bag', tmp_path / 'in.yaml', tmp_path / 'out.yaml'
-    synth.generate_bag(bag, 'tight', frames=240, rate=20.0,
-                       camera=synth.SynthCamera.scaled(752, 480), params_out=params,
-                       configured_error=synth.MountingError(pitch=0.5, roll=-0.5),
-                       rolling_shutter=RollingShutter(0.03))
+    bag, params, _ = tight_rolling_shutter_drive
+    out = tmp_path / 'out.yaml'
     assert config.load_params_file(params)['rolling_shutter_readout'] == 0.0
     run = subprocess.run([resources.executable('planar_vo_calibrate'), str(bag), '--params',
                           str(params), '--output', str(out), '--rolling-shutter', '--json'],
