@@ -103,7 +103,7 @@ def _blur_wrap(img: np.ndarray, sigma: float) -> np.ndarray:
     return cv2.GaussianBlur(big, (0, 0), sigma)[pad:-pad, pad:-pad]
 
 
-@functools.lru_cache(maxsize=2)
+@functools.lru_cache(maxsize=5)  # ~64 MB each: the tests' five seeds built once
 def make_ground_texture(seed: int = 0, size: int = 4096, texel: float = 0.005) -> Texture:
     """Asphalt-like periodic texture: pink noise + speckle + stones + stains + lane dashes."""
     rng = np.random.default_rng([seed, 2])
