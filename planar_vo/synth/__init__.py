@@ -28,6 +28,10 @@ Geometry (all exact, the odometry is tested against it):
   planar parts of the 3D motion on a <= 2 ms grid: distance along the surface. Every pixel's
   ray is intersected with the height field (the first hit). On flat ground none of it runs:
   bags are byte for byte those of before.
+- A rolling shutter (``shutter``) exposes row r of H at stamp + (r/H - c) * readout and
+  renders each row from the pose at its own time: on flat ground the bicycle model's, on
+  terrain the vehicle's 3D pose riding the height field then (and the sprung body's), each
+  row's rays cast from there. The ground truth stays at the stamps.
 
 Rendering: a periodic pink-noise asphalt texture (20.48 m tile, 5 mm texels) sampled through
 a mip-map with trilinear filtering, level chosen from each pixel's ground footprint; haze and a

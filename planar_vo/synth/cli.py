@@ -134,8 +134,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--rolling-shutter', type=non_negative_float, default=0.0,
                    metavar='SECONDS',
                    help='rolling-shutter readout: row r of H exposed at stamp + (r/H - c) '
-                        'SECONDS, each row rendered from the pose at its own time (flat ground; '
-                        'default 0: a global shutter). Recorded in the bag metadata')
+                        'SECONDS, each row rendered from the pose at its own time (on terrain '
+                        'the 3D pose riding it; default 0: a global shutter). Recorded in the '
+                        'bag metadata; the ground truth stays at the stamps')
     p.add_argument('--rolling-shutter-stamp', choices=list(STAMPS), default='middle',
                    help='where the stamp is in the readout: start (c = 0), middle (c = 0.5, '
                         'default) or end (c = 1)')
@@ -190,9 +191,6 @@ def main(argv=None) -> int:
         parser.error('--exposure must be at most 0.5 (a gain within +-50 %)')
     if args.rolling_shutter > 0.2:
         parser.error('--rolling-shutter must be at most 0.2 s')
-    terrain = args.terrain or SCENARIOS[args.scenario].terrain
-    if args.rolling_shutter and terrain != 'flat':
-        parser.error('--rolling-shutter is rendered on flat ground only')
     if args.configured_error and not args.params_out:
         parser.error('--configured-error needs --params-out (it only changes that file)')
     if args.configured_error and args.configured_error.apply(mounting).height <= 0:

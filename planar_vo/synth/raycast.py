@@ -27,16 +27,27 @@ def intersect(terrain: Terrain, origin, dirs: np.ndarray, max_range: float, *,
               step_max: float = 0.3, tol: float = 1e-7, iterations: int = 40):
     """Ray length ``t`` (N,) to the first hit and ``hit`` (N,) bool (False: none in range).
 
-    ``origin`` (3,) is the common ray origin, ``dirs`` (3, N) unit directions (world frame).
-    ``t`` is inf where there is no hit.
+    ``origin`` (3,) is the common ray origin, or (3, N) one per ray (a rolling shutter: each
+    row from its own pose); ``dirs`` (3, N) unit directions (world frame). ``max_range`` is
+    the horizontal distance from each ray's own origin. ``t`` is inf where there is no hit.
     """
-    ox, oy, oz = (float(v) for v in origin)
     d = np.asarray(dirs, np.float64)
     n = d.shape[1]
+    o = np.asarray(origin, np.float64)
+    if o.ndim == 1:  # one origin: scalars, as before
+        ox, oy, oz = (float(v) for v in o)
+        centre, spread = (ox, oy), 0.0
+    else:
+        if o.shape != (3, n):
+            raise ValueError(f'origin must be (3,) or (3, {n}), got {o.shape}')
+        ox, oy, oz = o
+        # the terrain's bounds over a disc holding every ray's range
+        centre = (float(ox[0]), float(oy[0]))
+        spread = float(np.max(np.hypot(ox - ox[0], oy - oy[0]), initial=0.0))
     horiz = np.hypot(d[0], d[1])
     with np.errstate(divide='ignore'):
         t_end = np.where(horiz > 1e-12, max_range / horiz, np.inf)
-    lo, hi = terrain.bounds(ox, oy, max_range)
+    lo, hi = terrain.bounds(*centre, max_range + spread)
     smooth, _, rough_hi = split(terrain)
     lipschitz = smooth.lipschitz
     # The ray is above every point of the surface until it comes down to `hi`.
@@ -53,8 +64,15 @@ def intersect(terrain: Terrain, origin, dirs: np.ndarray, max_range: float, *,
     act = np.flatnonzero(t_top < t_end)
     t = t_top[act]
 
+    def at(idx):
+        """The origins of rays ``idx``: the common one's scalars, or each ray's own."""
+        if o.ndim == 1:
+            return ox, oy, oz
+        return ox[idx], oy[idx], oz[idx]
+
     def f_of(idx, tt):
-        return oz + tt * d[2, idx] - terrain.height(ox + tt * d[0, idx], oy + tt * d[1, idx])
+        x0, y0, z0 = at(idx)
+        return z0 + tt * d[2, idx] - terrain.height(x0 + tt * d[0, idx], y0 + tt * d[1, idx])
 
     # 1. sphere tracing on the upper envelope (smooth part + highest rough feature)
     rate = np.abs(d[2, act]) + lipschitz * horiz[act]
@@ -62,7 +80,8 @@ def intersect(terrain: Terrain, origin, dirs: np.ndarray, max_range: float, *,
     for _ in range(iterations):
         if act.size == 0:
             break
-        up = (oz + t * d[2, act] - smooth.height(ox + t * d[0, act], oy + t * d[1, act])
+        x0, y0, z0 = at(act)
+        up = (z0 + t * d[2, act] - smooth.height(x0 + t * d[0, act], y0 + t * d[1, act])
               - rough_hi)
         far = up > 2 * margin
         near_idx.append(act[~far])

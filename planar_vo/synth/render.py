@@ -11,6 +11,7 @@ from planar_vo.synth.lens import SynthCamera
 from planar_vo.synth.mount import BODY_FROM_OPTICAL, DEFAULT_MOUNTING, CameraMount
 from planar_vo.synth.raycast import intersect
 from planar_vo.synth.scene import Texture, make_ground_texture
+from planar_vo.synth.shutter import WorldRowPoses
 from planar_vo.synth.terrain import FLAT, Terrain
 from planar_vo.synth.vehicle import Trajectory
 
@@ -65,6 +66,10 @@ class Renderer:
     (:func:`planar_vo.synth.raycast.intersect`), the texture sampled at the hit's world (x, y)
     with the mip level of the hit's footprint (finite differences of neighbouring hits), and
     boxes stand on the ground under their centre.
+
+    A rolling shutter sets :attr:`rows` (:mod:`planar_vo.synth.shutter`): on flat ground the
+    planar pose of every row (:meth:`render_rows`), on terrain the 3D pose of every row
+    (:meth:`render_world_rows`: each row's rays cast from its own camera pose).
     """
 
     def __init__(self, camera: SynthCamera | None = None, mounting=None,
@@ -287,6 +292,8 @@ class Renderer:
     def render_rows(self, k: int) -> np.ndarray:
         """Frame k with a rolling shutter: every row from its own pose (:attr:`rows`)."""
         rows = self.rows
+        if isinstance(rows, WorldRowPoses):
+            return self.render_world_rows(k)
         xr, yr, yawr = rows.x[k], rows.y[k], rows.yaw[k]
         s, width = self.supersample, self.camera.width * self.supersample
         if rows.camera_position is None:  # rigid mount: the ground geometry is precomputed
@@ -385,6 +392,82 @@ class Renderer:
                                sky, ground=self.terrain, boxes=boxes)
         return self._finish(img, k)
 
+    def row_cameras(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The camera's world pose at each sensor row's time of frame k, on terrain.
+
+        ``(position (H, 3), world_from_optical (H, 3, 3))`` from :attr:`rows` (a
+        :class:`~planar_vo.synth.shutter.WorldRowPoses`): base_link's pose at the row's time
+        composed with the camera's pose on the body then (the mount's on a rigid one).
+        """
+        rows = self.rows
+        pos, rot = rows.position[k], rows.rotation[k]
+        if rows.camera_position is None:
+            cam_pos = np.broadcast_to(self.origin, pos.shape)
+            cam_rot = np.broadcast_to(self.base_from_optical, rot.shape)
+        else:
+            cam_pos = rows.camera_position[k]
+            cam_rot = rows.camera_rotation[k] @ BODY_FROM_OPTICAL
+        return pos + (rot @ cam_pos[:, :, None])[:, :, 0], rot @ cam_rot
+
+    def render_world_rows(self, k: int) -> np.ndarray:
+        """Frame k over ``self.terrain`` with a rolling shutter: each row from its own pose.
+
+        Every row's rays start at its camera's 3D pose (:meth:`row_cameras`) and are
+        intersected with the height field from there. As :meth:`render_world` otherwise; the
+        mip level comes from the footprint of the hits with each row's camera translation
+        (relative to the first row's) taken out, as one instant's projection sees it, and
+        boxes are drawn row by row from the row's pose.
+        """
+        positions, rotations = self.row_cameras(k)
+        ground = self.terrain.height(positions[:, 0], positions[:, 1])
+        if np.any(positions[:, 2] <= ground):
+            raise ValueError('the camera must stay above the ground')
+        n = self._unit_rays.shape[1]
+        row = self._sensor_row(np.arange(n))
+        dirs = _rotate_rows(rotations, row, self._unit_rays.astype(np.float64))
+        origins = positions.T[:, row]  # (3, N): each ray from its row's camera
+        sky = self._sky_fast(dirs[2].astype(np.float32))
+        img = sky.copy()
+        t, hit = intersect(self.terrain, origins, dirs, self.max_range)
+        idx = np.flatnonzero(hit)
+        ox, oy = origins[0, idx], origins[1, idx]
+        gx = ox + t[idx] * dirs[0, idx]
+        gy = oy + t[idx] * dirs[1, idx]
+        dist = np.hypot(gx - ox, gy - oy)
+        # mip level from the footprint: finite differences of neighbouring hits, each less
+        # its row camera's offset from the first row's (exactly the hits when rows agree)
+        cam, s = self.camera, self.supersample
+        shape = (cam.height * s, cam.width * s)
+        grid = np.full((shape[0] * shape[1], 2), np.nan)
+        grid[idx, 0] = gx - (ox - positions[0, 0])
+        grid[idx, 1] = gy - (oy - positions[0, 1])
+        grid = grid.reshape(*shape, 2)
+        du = np.linalg.norm(np.gradient(grid, axis=1), axis=2)
+        dv = np.linalg.norm(np.gradient(grid, axis=0), axis=2)
+        foot = np.fmax(du, dv).ravel()[idx]
+        level = np.log2(np.maximum(np.nan_to_num(foot, nan=1e3) / self.texture.texel, 1e-9))
+        level = np.clip(level, 0.0, self.texture.nlevels - 1.0)
+        l0 = np.floor(level).astype(np.int64)
+        order = np.argsort(l0, kind='stable')
+        idx, gx, gy, dist = idx[order], gx[order], gy[order], dist[order]
+        val = self.texture.sample_sorted(gx, gy, l0[order],
+                                         (level[order] - l0[order]).astype(np.float32))
+        fog = self._haze(dist)
+        behind = img[idx]
+        img[idx] = val + (behind - val) * fog
+        boxes = self.boxes_at(k)
+        if boxes:  # row by row, each seen from its own pose
+            depth = np.where(hit, t, np.inf)
+            dirs32 = dirs.astype(np.float32)
+            width = cam.width * s
+            under = [float(self.terrain.height(b.x, b.y)) for b in boxes]
+            for rho in range(cam.height * s):
+                sl = slice(rho * width, (rho + 1) * width)
+                self._render_boxes(img[sl], 0.0, 0.0, 0.0, positions[rho // s], dirs32[:, sl],
+                                   depth[sl], sky[sl], ground=self.terrain, boxes=boxes,
+                                   under=under)
+        return self._finish(img, k)
+
     @staticmethod
     def _sky_fast(up: np.ndarray) -> np.ndarray:
         """:meth:`_sky` in float32 arithmetic (``sin(arcsin(up)) = up``)."""
@@ -405,23 +488,25 @@ class Renderer:
     def _render_boxes(self, img: np.ndarray, x: float, y: float, yaw: float,
                       origin: np.ndarray, dirs: np.ndarray, depth: np.ndarray,
                       sky: np.ndarray, ground: Terrain | None = None,
-                      boxes: list | None = None) -> None:
+                      boxes: list | None = None, under: list | None = None) -> None:
         """Draw ``boxes`` (default: the static ones) over ``img`` from base_link (x, y, yaw).
 
         ``origin`` and the unit pixel rays ``dirs`` (3, N) are in base_link; ``depth`` is the
         ground's ray length per pixel, ``sky`` the sky behind the haze. On a ``ground``
         terrain (world frame: x = y = yaw = 0) each box stands on the height under its centre
-        and reaches 0.5 m below it (the ground hides that part).
+        and reaches 0.5 m below it (the ground hides that part); ``under``: those heights, one
+        per box, when already known.
         """
         c, s = math.cos(yaw), math.sin(yaw)
         ox, oy, oz_camera = origin
         cwx, cwy = x + c * ox - s * oy, y + s * ox + c * oy  # camera centre in odom
         cands = []
-        for b in self.boxes if boxes is None else boxes:
+        for i, b in enumerate(self.boxes if boxes is None else boxes):
             if ground is None:
                 oz, bottom = oz_camera, 0.0
             else:  # the box's own vertical frame: z = 0 on the ground under its centre
-                oz, bottom = oz_camera - float(ground.height(b.x, b.y)), -0.5
+                base = float(ground.height(b.x, b.y)) if under is None else under[i]
+                oz, bottom = oz_camera - base, -0.5
             dx, dy = b.x - cwx, b.y - cwy
             mid, half = (b.height + bottom) / 2, (b.height - bottom) / 2
             r = math.sqrt(b.half_x ** 2 + b.half_y ** 2 + half ** 2)

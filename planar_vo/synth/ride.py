@@ -179,35 +179,84 @@ def _vee(dr: np.ndarray) -> np.ndarray:
     return axis * scale[:, None]
 
 
-def ride_over(drive, terrain: Terrain, frames: int, rate: float, seed: int,
-         chassis: Chassis | str = 'car', *, passes: int = 4) -> Trajectory:
-    """The trajectory of a drive over ``terrain``: 3D pose and planar truth at the frames.
+@dataclass(frozen=True)
+class RideGrid:
+    """The ride on its fine time grid (step ``h``), as :func:`ride_over` solves it.
 
-    ``drive`` as for :func:`planar_vo.synth.vehicle.make_trajectory` (the same seeded speed
-    and steering profiles). ``traj.pose3d`` holds the world pose; ``traj.x, y, yaw`` the
-    planar truth (distance along the surface), ``traj.v, omega`` the body twist's forward
-    speed and yaw rate at each stamp.
+    ``t``, ``x``, ``y``, ``heading`` (n,): grid time (s) and horizontal state; ``rate_x``,
+    ``rate_y``, ``rate_heading`` (n,): the rates the last pass integrated (trapezoid rule,
+    so between grid points the state is the integral of their linear interpolant);
+    ``position`` (n, 3) and ``rotation`` (n, 3, 3): base_link's world pose (the wheels
+    settled on the terrain). Frame k is grid point ``first + k * sub``.
+    """
+
+    terrain: Terrain
+    chassis: Chassis
+    h: float
+    first: int
+    sub: int
+    t: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    heading: np.ndarray
+    rate_x: np.ndarray
+    rate_y: np.ndarray
+    rate_heading: np.ndarray
+    position: np.ndarray
+    rotation: np.ndarray
+
+    def state_at(self, index: np.ndarray, offset: np.ndarray):
+        """Horizontal (x, y, heading) at ``offset`` s (>= 0, < h) after grid points ``index``.
+
+        The trapezoid rule's own interpolant: the state plus the integral of the linearly
+        interpolated rate (exactly the grid's values at offset 0 and at h).
+        """
+        i, u = np.asarray(index), np.asarray(offset, np.float64)
+        q = u * u / (2 * self.h)
+        j = np.minimum(i + 1, len(self.t) - 1)  # the last point: offset 0 only
+        return tuple(a[i] + u * r[i] + q * (r[j] - r[i]) for a, r in
+                     ((self.x, self.rate_x), (self.y, self.rate_y),
+                      (self.heading, self.rate_heading)))
+
+    def pose_at(self, index: np.ndarray, offset: np.ndarray):
+        """base_link's world pose ((N, 3), (N, 3, 3)) at ``offset`` s after grid points."""
+        x, y, heading = self.state_at(index, offset)
+        z, pitch, roll, _ = settle(self.terrain, self.chassis, x, y, heading)
+        return np.stack([x, y, z], 1), rotations(heading, pitch, roll)
+
+
+def ride_grid(drive, terrain: Terrain, frames: int, rate: float, seed: int,
+              chassis: Chassis | str = 'car', *, passes: int = 4,
+              margin: float = 0.0) -> RideGrid:
+    """The ride of :func:`ride_over` on its fine grid, ``margin`` s longer at both ends.
+
+    With ``margin`` 0 the grid is one step beyond the first and the last frame; a rolling
+    shutter's rows before the first stamp and after the last need more.
     """
     chassis = CHASSIS[chassis] if isinstance(chassis, str) else chassis
     speed, steer = drive_functions(drive, frames, rate, seed)
     dt = 1.0 / rate
     sub = max(1, math.ceil(dt / FINE_STEP - 1e-9))
     h = dt / sub
-    # the fine grid, one step beyond the first and the last frame (central differences there);
-    # frame k is grid point 1 + k * sub, the start (0, 0, heading 0) is grid point 1
-    n = (frames - 1) * sub + 3
-    t = (np.arange(n) - 1) * h
+    # the fine grid, one step beyond the first and the last frame (central differences there)
+    # and `extra` steps more; frame k is grid point first + k * sub, the start (0, 0, heading
+    # 0) is grid point first
+    extra = math.ceil(margin / h - 1e-9) if margin > 0 else 0
+    first = 1 + extra
+    n = (frames - 1) * sub + 3 + 2 * extra
+    t = (np.arange(n) - first) * h
     v = speed(t)
     omega = v * np.tan(steer(t)) / WHEELBASE
 
     def integrate(rate):
         out = _cumtrapz(rate, h)
-        return out - out[1]
+        return out - out[first]
 
     # First guess: the flat bicycle path (trapezoid rule), then fixed-point passes.
     heading = integrate(omega)
     x = integrate(v * np.cos(heading))
     y = integrate(v * np.sin(heading))
+    rate_heading, rate_x, rate_y = omega, v * np.cos(heading), v * np.sin(heading)
     axle = chassis._groups()[4]
     pts = chassis.points[axle]
     for _ in range(passes):
@@ -221,15 +270,50 @@ def ride_over(drive, terrain: Terrain, frames: int, rate: float, seed: int,
         ground_speed = v / np.sqrt(1.0 + slope * slope)
         pitch_rate = np.gradient(pitch, h)
         # body yaw rate = heading_rate cos(pitch) cos(roll) - pitch_rate sin(roll)
-        heading_rate = (omega + pitch_rate * np.sin(roll)) / (np.cos(pitch) * np.cos(roll))
-        heading = integrate(heading_rate)
-        x = integrate(ground_speed * np.cos(heading))
-        y = integrate(ground_speed * np.sin(heading))
+        rate_heading = (omega + pitch_rate * np.sin(roll)) / (np.cos(pitch) * np.cos(roll))
+        heading = integrate(rate_heading)
+        rate_x, rate_y = ground_speed * np.cos(heading), ground_speed * np.sin(heading)
+        x = integrate(rate_x)
+        y = integrate(rate_y)
     z, pitch, roll, _ = settle(terrain, chassis, x, y, heading)
     pos = np.stack([x, y, z], 1)
     rot = rotations(heading, pitch, roll)
+    return RideGrid(terrain, chassis, h, first, sub, t, x, y, heading, rate_x, rate_y,
+                    rate_heading, pos, rot)
+
+
+def body_twist(rot_a, pos_a, rot_k, rot_b, pos_b, span):
+    """base_link's body twist at k from the poses a before it and b after it.
+
+    Central differences over ``span`` s: (linear (N, 3) in k's frame, angular (N, 3)).
+    """
+    ra_t = np.swapaxes(rot_a, 1, 2)
+    dpk = np.einsum('nij,nj->ni', ra_t, pos_b - pos_a)
+    drk = ra_t @ rot_b
+    # the velocity at k in k's frame: rotate the a-frame difference into k's frame
+    linear = np.einsum('nji,nj->ni', ra_t @ rot_k, dpk) / span[:, None]
+    return linear, _vee(drk) / span[:, None]
+
+
+def ride_over(drive, terrain: Terrain, frames: int, rate: float, seed: int,
+              chassis: Chassis | str = 'car', *, passes: int = 4,
+              grid: RideGrid | None = None) -> Trajectory:
+    """The trajectory of a drive over ``terrain``: 3D pose and planar truth at the frames.
+
+    ``drive`` as for :func:`planar_vo.synth.vehicle.make_trajectory` (the same seeded speed
+    and steering profiles). ``traj.pose3d`` holds the world pose; ``traj.x, y, yaw`` the
+    planar truth (distance along the surface), ``traj.v, omega`` the body twist's forward
+    speed and yaw rate at each stamp. ``grid``: the ride already solved by :func:`ride_grid`
+    with these arguments (a longer one for a rolling shutter), else solved here.
+    """
+    if grid is None:
+        grid = ride_grid(drive, terrain, frames, rate, seed, chassis, passes=passes)
+    speed, steer = drive_functions(drive, frames, rate, seed)
+    rot, pos, h, t, sub, first = grid.rotation, grid.position, grid.h, grid.t, grid.sub, \
+        grid.first
+    dt = 1.0 / rate
     # planar truth: SE(2) composition of the body-frame planar parts of each fine step
-    idx = np.arange(1, n - 2)
+    idx = np.arange(first, first + (frames - 1) * sub)
     dp, dr = _relative(rot, pos, idx, idx + 1)
     dyaw = np.arctan2(dr[:, 1, 0], dr[:, 0, 0])
     yaw = np.concatenate([[0.0], np.cumsum(dyaw)])
@@ -239,13 +323,10 @@ def ride_over(drive, terrain: Terrain, frames: int, rate: float, seed: int,
     j = np.arange(frames) * sub  # frames in the planar arrays
     px, py, yaw = px[j], py[j], yaw[j]
     # body twist at the frames: central differences on the fine grid
-    k = j + 1
+    k = j + first
     a, b = k - 1, k + 1
     span = (b - a) * h
-    dpk, drk = _relative(rot, pos, a, b)
-    # the velocity at k in k's frame: rotate the a-frame difference into k's frame
-    linear = np.einsum('nji,nj->ni', np.swapaxes(rot[a], 1, 2) @ rot[k], dpk) / span[:, None]
-    angular = _vee(drk) / span[:, None]
+    linear, angular = body_twist(rot[a], pos[a], rot[k], rot[b], pos[b], span)
     eps = 1e-5
     accel = (speed(t[k] + eps) - speed(t[k] - eps)) / (2 * eps)
     pose3d = Pose3D(pos[k], rot[k], linear, angular)

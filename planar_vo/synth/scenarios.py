@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from planar_vo.synth.lens import SynthCamera
 from planar_vo.synth.mount import DEFAULT_MOUNTING, CameraMount
 from planar_vo.synth.render import Renderer, exposure_gains
-from planar_vo.synth.ride import CHASSIS, ride_over, with_world_path
+from planar_vo.synth.ride import CHASSIS, FINE_STEP, ride_grid, ride_over, with_world_path
 from planar_vo.synth.scene import (
     ObstacleProfile,
     TrafficProfile,
@@ -25,7 +25,7 @@ from planar_vo.synth.scene import (
     make_obstacles,
     make_traffic,
 )
-from planar_vo.synth.shutter import RollingShutter, row_poses
+from planar_vo.synth.shutter import RollingShutter, row_poses, world_row_poses
 from planar_vo.synth.terrain import (
     TERRAIN_KINDS,
     Terrain,
@@ -168,8 +168,9 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
     camera pose of every frame.
 
     ``rolling_shutter`` (a :class:`~planar_vo.synth.shutter.RollingShutter` with a readout
-    over 0) renders each row from the pose at its own time (``renderer.rows``, flat ground
-    only); the trajectory stays the truth at the image stamps.
+    over 0) renders each row from the pose at its own time (``renderer.rows``; on terrain
+    the vehicle's 3D pose riding the height field then, the sprung body included); the
+    trajectory stays the truth at the image stamps.
     """
     if not 0.0 <= exposure < 1.0:
         raise ValueError(f'exposure must be in [0, 1), got {exposure}')
@@ -183,8 +184,13 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
     traj = make_trajectory(sc.drive, frames, rate, seed)
     ground = terrain if isinstance(terrain, Terrain) else make_terrain(
         sc.terrain if terrain is None else terrain, seed, traj.x, traj.y, shape=terrain_shape)
+    rolling = rolling_shutter is not None and not rolling_shutter.global_shutter
+    grid = None
     if not ground.flat:
-        traj = ride_over(sc.drive, ground, frames, rate, seed, CHASSIS[vehicle])
+        if rolling:  # the ride solved beyond the first and the last stamp by the readout
+            grid = ride_grid(sc.drive, ground, frames, rate, seed, CHASSIS[vehicle],
+                             margin=rolling_shutter.readout + FINE_STEP)
+        traj = ride_over(sc.drive, ground, frames, rate, seed, CHASSIS[vehicle], grid=grid)
     traj = mount_camera(traj, mounting, suspension, seed)
     boxes = make_obstacles(with_world_path(traj), sc.obstacles, seed, mounting) \
         if obstacles else []
@@ -195,9 +201,10 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
                         exposure=exposure_gains(traj.t, exposure, seed) if exposure else None,
                         supersample=supersample, terrain=ground, traffic=traffic,
                         frame_times=traj.t if traffic else None)
-    if rolling_shutter is not None and not rolling_shutter.global_shutter:
-        if not ground.flat:
-            raise ValueError('a rolling shutter is rendered on flat ground only (for now)')
+    if rolling and grid is not None:
+        renderer.rows = world_row_poses(grid, traj, sc.drive, rate, seed, rolling_shutter,
+                                        renderer.camera.height, mounting, suspension)
+    elif rolling:
         renderer.rows = row_poses(sc.drive, traj, rate, seed, rolling_shutter,
                                   renderer.camera.height, mounting, suspension)
     return renderer, traj
