@@ -365,26 +365,8 @@ class Renderer:
         idx = np.flatnonzero(hit)
         gx = position[0] + t[idx] * dirs[0, idx]
         gy = position[1] + t[idx] * dirs[1, idx]
-        dist = np.hypot(gx - position[0], gy - position[1])
-        # mip level from the footprint: finite differences of neighbouring hits
-        cam, s = self.camera, self.supersample
-        shape = (cam.height * s, cam.width * s)
-        grid = np.full((shape[0] * shape[1], 2), np.nan)
-        grid[idx, 0], grid[idx, 1] = gx, gy
-        grid = grid.reshape(*shape, 2)
-        du = np.linalg.norm(np.gradient(grid, axis=1), axis=2)
-        dv = np.linalg.norm(np.gradient(grid, axis=0), axis=2)
-        foot = np.fmax(du, dv).ravel()[idx]
-        level = np.log2(np.maximum(np.nan_to_num(foot, nan=1e3) / self.texture.texel, 1e-9))
-        level = np.clip(level, 0.0, self.texture.nlevels - 1.0)
-        l0 = np.floor(level).astype(np.int64)
-        order = np.argsort(l0, kind='stable')
-        idx, gx, gy, dist = idx[order], gx[order], gy[order], dist[order]
-        val = self.texture.sample_sorted(gx, gy, l0[order],
-                                         (level[order] - l0[order]).astype(np.float32))
-        fog = self._haze(dist)
-        behind = img[idx]
-        img[idx] = val + (behind - val) * fog
+        self._texture_hits(img, idx, gx, gy, np.hypot(gx - position[0], gy - position[1]),
+                           gx, gy)
         boxes = self.boxes_at(k)
         if boxes:
             depth = np.where(hit, t, np.inf)
@@ -433,14 +415,35 @@ class Renderer:
         ox, oy = origins[0, idx], origins[1, idx]
         gx = ox + t[idx] * dirs[0, idx]
         gy = oy + t[idx] * dirs[1, idx]
-        dist = np.hypot(gx - ox, gy - oy)
-        # mip level from the footprint: finite differences of neighbouring hits, each less
-        # its row camera's offset from the first row's (exactly the hits when rows agree)
+        # the footprint of each hit less its row camera's offset from the first row's
+        # (exactly the hits when the rows agree)
+        self._texture_hits(img, idx, gx, gy, np.hypot(gx - ox, gy - oy),
+                           gx - (ox - positions[0, 0]), gy - (oy - positions[0, 1]))
+        cam, s = self.camera, self.supersample
+        boxes = self.boxes_at(k)
+        if boxes:  # row by row, each seen from its own pose
+            depth = np.where(hit, t, np.inf)
+            dirs32 = dirs.astype(np.float32)
+            width = cam.width * s
+            under = [float(self.terrain.height(b.x, b.y)) for b in boxes]
+            for rho in range(cam.height * s):
+                sl = slice(rho * width, (rho + 1) * width)
+                self._render_boxes(img[sl], 0.0, 0.0, 0.0, positions[rho // s], dirs32[:, sl],
+                                   depth[sl], sky[sl], ground=self.terrain, boxes=boxes,
+                                   under=under)
+        return self._finish(img, k)
+
+    def _texture_hits(self, img: np.ndarray, idx: np.ndarray, gx: np.ndarray, gy: np.ndarray,
+                      dist: np.ndarray, foot_x: np.ndarray, foot_y: np.ndarray) -> None:
+        """Rays ``idx`` (into ``img``) hit the ground at (gx, gy), ``dist`` m away: textured.
+
+        The mip level from the footprint: finite differences of neighbouring rays' (foot_x,
+        foot_y).
+        """
         cam, s = self.camera, self.supersample
         shape = (cam.height * s, cam.width * s)
         grid = np.full((shape[0] * shape[1], 2), np.nan)
-        grid[idx, 0] = gx - (ox - positions[0, 0])
-        grid[idx, 1] = gy - (oy - positions[0, 1])
+        grid[idx, 0], grid[idx, 1] = foot_x, foot_y
         grid = grid.reshape(*shape, 2)
         du = np.linalg.norm(np.gradient(grid, axis=1), axis=2)
         dv = np.linalg.norm(np.gradient(grid, axis=0), axis=2)
@@ -455,18 +458,6 @@ class Renderer:
         fog = self._haze(dist)
         behind = img[idx]
         img[idx] = val + (behind - val) * fog
-        boxes = self.boxes_at(k)
-        if boxes:  # row by row, each seen from its own pose
-            depth = np.where(hit, t, np.inf)
-            dirs32 = dirs.astype(np.float32)
-            width = cam.width * s
-            under = [float(self.terrain.height(b.x, b.y)) for b in boxes]
-            for rho in range(cam.height * s):
-                sl = slice(rho * width, (rho + 1) * width)
-                self._render_boxes(img[sl], 0.0, 0.0, 0.0, positions[rho // s], dirs32[:, sl],
-                                   depth[sl], sky[sl], ground=self.terrain, boxes=boxes,
-                                   under=under)
-        return self._finish(img, k)
 
     @staticmethod
     def _sky_fast(up: np.ndarray) -> np.ndarray:
