@@ -312,3 +312,17 @@ def test_calibrate_learns_the_readout(tight_rolling_shutter_drive, tmp_path):
     calibrated = config.load_params_file(out)
     assert abs(calibrated['rolling_shutter_readout'] - 0.03) < 0.003, report
     assert 'rolling_shutter_readout' not in report['kept'], report
+
+
+def test_a_rolling_shutter_draws_the_traffic_a_global_one_does():
+    # A readout of 1 us is a global shutter: the frames must agree, crossing traffic included
+    # (it once drew the parked boxes only: 120-180 grey levels off where a car crossed).
+    camera = synth.SynthCamera.scaled(160, 120)
+    still, traj = synth.render_scenario('stop_and_go', 200, 0, rate=10.0, camera=camera)
+    rolling, _ = synth.render_scenario('stop_and_go', 200, 0, rate=10.0, camera=camera,
+                                       rolling_shutter=RollingShutter(1e-6, 'middle'))
+    for k in (0, 10, 90):
+        assert len(still.boxes_at(k)) > len(still.boxes)  # traffic in the scene
+        diff = np.abs(still.render_frame(traj, k).astype(int)
+                      - rolling.render_frame(traj, k).astype(int))
+        assert diff.max() <= 1, k

@@ -339,12 +339,13 @@ class Renderer:
             img[self._c_idx] = val + (behind - val) * fog
             depth = np.full(img.shape[0], np.inf)
             depth[self._c_idx[ground]] = t[ground]
-        if self.boxes:  # row by row, each seen from its own pose
+        boxes = self.boxes_at(k)  # the traffic where it is at the frame's stamp
+        if boxes:  # row by row, each seen from its own pose
             for rho in range(self.camera.height * s):
                 row = rho // s
                 sl = slice(rho * width, (rho + 1) * width)
                 self._render_boxes(img[sl], xr[row], yr[row], yawr[row], positions[row],
-                                   dirs[:, sl], depth[sl], sky[sl])
+                                   dirs[:, sl], depth[sl], sky[sl], boxes=boxes)
         return self._finish(img, k)
 
     def render_world(self, k: int, position: np.ndarray,
