@@ -13,6 +13,7 @@ from planar_vo.core.estimation.rolling_shutter import ShutterModel, accelerated,
 from planar_vo.core.geometry.camera import Mounting
 from planar_vo.core.geometry.se2 import circular_motion, power, twist_motion
 from planar_vo.core.metrics import metrics
+from planar_vo.core.odometry.ground_filter import LocalGroundFilter
 from planar_vo.io import resources
 from planar_vo.synth.shutter import RollingShutter, RowPoses
 
@@ -326,3 +327,35 @@ def test_a_rolling_shutter_draws_the_traffic_a_global_one_does():
         diff = np.abs(still.render_frame(traj, k).astype(int)
                       - rolling.render_frame(traj, k).astype(int))
         assert diff.max() <= 1, k
+
+
+def test_a_track_on_a_grade_is_moved_to_its_stamp_as_a_point_on_the_grade():
+    # The de-skew moves each track by the motion over its row's time offset: a point off the
+    # wheels' plane (the road ahead's surface) moves in the image as a point at its own
+    # depth, not as the plane point on its ray. Checked against the pinhole's closed form.
+    mounting = Mounting(x=1.2, y=0.0, height=1.1, roll=0.0, pitch=0.14, yaw=0.0)
+    A, b = mounting.ground_to_optical()
+    model = TransferModel(A, b, 500.0, mounting)
+    ground = LocalGroundFilter(mounting, rates=np.array([0.3, 0.3, 0.1]), hinge=2.7,
+                               self_calibrate=False)
+    ground.surface = np.array([0.05, 0.01, 0.03, 0.01, 0.02])  # grade, crown, a crest...
+    x, y = np.meshgrid(np.linspace(3.5, 6.0, 6), np.linspace(-1.5, 1.5, 5))
+    u, y = x.ravel() - 2.7, y.ravel()
+    points = np.c_[x.ravel(), y, 0.05 * u + 0.01 * y + 0.015 * u * u + 0.01 * u * y
+                   + 0.01 * y * y]  # on that surface
+    c = mounting.position
+    on_plane = c[:2] + (c[2] / (c[2] - points[:, 2]))[:, None] * (points[:, :2] - c[:2])
+    xy, height = ground.on_surface(on_plane, c)
+    np.testing.assert_allclose(np.c_[xy, height], points, atol=1e-12)
+    motion, dt = np.array([0.4, 0.01, 0.02]), 0.05
+    offset = np.linspace(-0.015, 0.015, len(points))
+    moved = power(motion, offset / dt)
+    c_, s_ = np.cos(moved[:, 2]), np.sin(moved[:, 2])
+    carried = np.c_[moved[:, 0] + c_ * points[:, 0] - s_ * points[:, 1],
+                    moved[:, 1] + s_ * points[:, 0] + c_ * points[:, 1], points[:, 2]]
+    optical = (carried - c) @ mounting.base_from_optical
+    want = optical[:, :2] / optical[:, 2:]
+    got = at_stamp(points[:, :2], offset, motion, dt, model, height=points[:, 2])
+    np.testing.assert_allclose(got, want, atol=1e-12)
+    plane = at_stamp(on_plane, offset, motion, dt, model)
+    assert 500 * np.abs(plane - want).max() > 0.1  # px: the plane's de-skew is off by this

@@ -63,9 +63,14 @@ class TransferModel:
         z = np.where(P[..., 2] > 1e-6, P[..., 2], np.nan)
         return P[..., :2] / z[..., None]
 
-    def project(self, points: np.ndarray) -> np.ndarray:
-        """Normalized image coordinates (N, 2) of ground points (N, 2) seen from frame 1."""
+    def project(self, points: np.ndarray, height: np.ndarray | None = None) -> np.ndarray:
+        """Normalized image coordinates (N, 2) of ground points (N, 2) seen from frame 1.
+
+        ``height`` (N,): the points stand that far above the ground plane (m).
+        """
         P = points @ self.A.T + self.b
+        if height is not None:
+            P = P + np.outer(height, self.mounting.base_from_optical[2])
         return P[:, :2] / P[:, 2:]
 
 

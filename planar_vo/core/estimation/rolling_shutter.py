@@ -167,7 +167,7 @@ def accelerated(points: np.ndarray, offsets: tuple[np.ndarray, np.ndarray], dt: 
 
 def at_stamp(points: np.ndarray, offset: np.ndarray, motion: np.ndarray, dt: float,
              model: TransferModel, rate: np.ndarray | None = None,
-             centre: float = 0.0) -> np.ndarray:
+             centre: float = 0.0, height: np.ndarray | None = None) -> np.ndarray:
     """Normalized coordinates (N, 2) of ground points seen off their frame's stamp, at it.
 
     ``points`` (N, 2): ground points in base_link at their rows' times, seen ``offset`` (N,)
@@ -177,6 +177,7 @@ def at_stamp(points: np.ndarray, offset: np.ndarray, motion: np.ndarray, dt: flo
     with ``model`` (a global shutter's image, taken at the stamp). With the twist changing
     at ``rate`` (see :func:`accelerated`; ``centre``: the frame's stamp minus the pair's
     middle, s), base_link moves on by ``exp(offset (offset / 2 + centre) rate)`` more.
+    ``height`` (N,): the points stand that far above the plane (the road ahead is not flat).
     """
     offset = np.asarray(offset, dtype=float)
     moved = power(motion, offset / max(dt, 1e-6))  # (N, 3)
@@ -185,7 +186,7 @@ def at_stamp(points: np.ndarray, offset: np.ndarray, motion: np.ndarray, dt: flo
         twist = mean_twist(np.asarray(motion, dtype=float), max(dt, 1e-6))[0]
         small = small - 0.5 * _bracket(offset[:, None] * twist, small)
         points = carry(_exp(small), points)
-    return model.project(carry(moved, points))
+    return model.project(carry(moved, points), height)
 
 
 def readout_measurement(motion: np.ndarray, p1: np.ndarray, m2: np.ndarray,

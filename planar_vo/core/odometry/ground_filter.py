@@ -282,6 +282,28 @@ class LocalGroundFilter:
         self.sprung = sprung.moved(change, rotation[2], camera, dt,
                                    read_before=self.sprung.tilt_read)
 
+    def on_surface(self, points: np.ndarray, camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Points (N, 2) on the wheels' plane moved along their rays onto the surface ahead.
+
+        ``camera``: the camera's position in base_link (the rays go through it). Returns the
+        points (N, 2) and their heights (N,) above the plane, m. A ray that misses the
+        surface keeps its plane point.
+        """
+        ep, er, k, kxy, kyy = self.surface
+        a, cy = camera[0] - self.hinge, camera[1]
+        dx, dy = points[:, 0] - camera[0], points[:, 1] - cy  # the ray: camera + s d, s = 1
+        # on the plane (d's z is minus the camera's height); A s^2 + B s + C = 0 on the surface
+        qa = 0.5 * k * dx * dx + kxy * dx * dy + 0.5 * kyy * dy * dy
+        qb = (ep * dx + er * dy + k * a * dx + kxy * (a * dy + cy * dx) + kyy * cy * dy
+              + camera[2])
+        qc = ep * a + er * cy + 0.5 * k * a * a + kxy * a * cy + 0.5 * kyy * cy * cy - camera[2]
+        disc = qb * qb - 4.0 * qa * qc
+        hit = (disc > 0.0) & (qb > 0.0)
+        scale = np.where(hit, -2.0 * qc / (qb + np.sqrt(np.where(hit, disc, 0.0))), 1.0)
+        scale = np.where(scale > 0.0, scale, 1.0)
+        xy = camera[:2] + scale[:, None] * (points - camera[:2])
+        return xy, camera[2] * (1.0 - scale)
+
     def _wheel_lift(self, rotation: np.ndarray, dt: float) -> float:
         """How far a wheel was lifted (m): the rotation beyond what the body turns."""
         beyond = np.maximum(np.abs(rotation[:2])

@@ -561,8 +561,13 @@ class VisualOdometry:
         ``points``: the tracks' ground points in both frames; ``rows``: their pixel rows;
         ``rate``: the twist's rate of change over the pair (None: constant).
         """
-        m1, m2 = (at_stamp(p, tau, motion, dt, model, rate, centre)
-                  for p, tau, centre in zip(points, self._row_times(*rows), (-dt / 2, dt / 2)))
+        if isinstance(self._tilt_filter, LocalGroundFilter):  # the road ahead is not flat
+            points = [self._tilt_filter.on_surface(p, model.mounting.position) for p in points]
+        else:
+            points = [(p, None) for p in points]
+        m1, m2 = (at_stamp(p, tau, motion, dt, model, rate, centre, height)
+                  for (p, height), tau, centre in zip(points, self._row_times(*rows),
+                                                      (-dt / 2, dt / 2)))
         return rays_through(m1), m2
 
     def _row_times(self, v1: np.ndarray, v2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
