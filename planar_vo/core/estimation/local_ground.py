@@ -36,8 +36,8 @@ import numpy as np
 from planar_vo.core.errors import PoseEstimationError
 from planar_vo.core.geometry.camera import Mounting
 
-__all__ = ['SURFACE_TERMS', 'GroundPrior', 'LocalGroundResult', 'refine_on_local_ground',
-           'surface_residuals']
+__all__ = ['SURFACE_TERMS', 'GroundPrior', 'LocalGroundResult', 'ray_coefficients',
+           'refine_on_local_ground', 'surface_residuals']
 
 SURFACE_TERMS = ('grade', 'cross_slope', 'curvature', 'twist', 'cross_curvature')
 _N = 11  # x, y, yaw, roll, pitch, dh of frame 2, then the five surface terms
@@ -88,14 +88,7 @@ class _Transfer:
         self.optical_from_base = mounting.base_from_optical.T
         self.offset = np.zeros(12)  # o = G lifted - optical_from_base c1
         self.offset[:3] = -self.optical_from_base @ self.c1
-        a, cy = self.c1[0] - hinge, self.c1[1]
-        dx, dy = v1[0], v1[1]
-        # A s^2 + B s + C = 0 for the ray c1 + s v1 on the surface: A, B and C are these
-        # dotted with the surface terms (B less v1's z, C less the camera height).
-        zero = np.zeros_like(dx)
-        self.dA = np.stack([zero, zero, 0.5 * dx * dx, dx * dy, 0.5 * dy * dy])
-        self.dB = np.stack([dx, dy, a * dx, a * dy + cy * dx, cy * dy])
-        self.dC = np.array([a, cy, 0.5 * a * a, a * cy, 0.5 * cy * cy])
+        self.dA, self.dB, self.dC = ray_coefficients(self.c1, v1, hinge)
 
     def __call__(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Residuals (2, N), Jacobian (11, 2, N) and validity (N,) at ``params``."""
@@ -144,6 +137,21 @@ class _Transfer:
         J = do[:, :2] - do[:, 2:3] * m
         J *= iz
         return m - self.m2, J, front
+
+
+def ray_coefficients(origin: np.ndarray, directions: np.ndarray,
+                     hinge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the rays ``origin + s directions`` ((3,), (3, N)) meet the surface.
+
+    ``A s^2 + B s + C = 0`` with A, B and C (dA (5, N), dB (5, N), dC (5,)) dotted with the
+    surface terms (B less the directions' z, C less the origin's height).
+    """
+    a, cy = origin[0] - hinge, origin[1]
+    dx, dy = directions[0], directions[1]
+    zero = np.zeros_like(dx)
+    return (np.stack([zero, zero, 0.5 * dx * dx, dx * dy, 0.5 * dy * dy]),
+            np.stack([dx, dy, a * dx, a * dy + cy * dx, cy * dy]),
+            np.array([a, cy, 0.5 * a * a, a * cy, 0.5 * cy * cy]))
 
 
 def surface_residuals(params: np.ndarray, v1: np.ndarray, m2: np.ndarray, mounting: Mounting,

@@ -22,6 +22,7 @@ from planar_vo.core.estimation.calibration import MountingCalibrator
 from planar_vo.core.estimation.local_ground import (
     GroundPrior,
     LocalGroundResult,
+    ray_coefficients,
     refine_on_local_ground,
 )
 from planar_vo.core.estimation.ransac import RansacResult, TransferModel
@@ -289,14 +290,12 @@ class LocalGroundFilter:
         points (N, 2) and their heights (N,) above the plane, m. A ray that misses the
         surface keeps its plane point.
         """
-        ep, er, k, kxy, kyy = self.surface
-        a, cy = camera[0] - self.hinge, camera[1]
-        dx, dy = points[:, 0] - camera[0], points[:, 1] - cy  # the ray: camera + s d, s = 1
-        # on the plane (d's z is minus the camera's height); A s^2 + B s + C = 0 on the surface
-        qa = 0.5 * k * dx * dx + kxy * dx * dy + 0.5 * kyy * dy * dy
-        qb = (ep * dx + er * dy + k * a * dx + kxy * (a * dy + cy * dx) + kyy * cy * dy
-              + camera[2])
-        qc = ep * a + er * cy + 0.5 * k * a * a + kxy * a * cy + 0.5 * kyy * cy * cy - camera[2]
+        # the ray camera + s d meets the plane at s = 1 (d's z is minus the camera's height)
+        d = np.c_[points - camera[:2], np.full(len(points), -camera[2])].T
+        dA, dB, dC = ray_coefficients(camera, d, self.hinge)
+        qa = self.surface @ dA
+        qb = self.surface @ dB + camera[2]
+        qc = self.surface @ dC - camera[2]
         disc = qb * qb - 4.0 * qa * qc
         hit = (disc > 0.0) & (qb > 0.0)
         scale = np.where(hit, -2.0 * qc / (qb + np.sqrt(np.where(hit, disc, 0.0))), 1.0)
