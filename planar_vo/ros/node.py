@@ -428,6 +428,11 @@ def main(args=None) -> int:
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        if rclpy.ok():  # not stopping: a real failure
+            raise
+        # Ctrl-C shut the context down while the executor was waiting: rclpy may raise from
+        # the wait instead of ExternalShutdownException. A clean stop all the same.
     finally:
         if node is not None:
             node.destroy_node()

@@ -118,7 +118,11 @@ def _main(args: argparse.Namespace) -> int:
               f'{result["live_vs_replay_max_position_difference_m"]:.4f} m')
     if 'plot' in result:
         print(f'plot written to {result["plot"]}')
-    return 0 if result['node_exit_status'] == 0 else 1
+    if result['node_exit_status'] != 0:
+        print(f'{PROG}: error: planar_vo_node exited with status {result["node_exit_status"]} '
+              'when stopped (--log FILE keeps its output)', file=sys.stderr)
+        return 1
+    return 0
 
 
 if __name__ == '__main__':
