@@ -160,8 +160,8 @@ class LocalGroundFilter:
         prior = GroundPrior(np.diag(self.rate2 * dt * dt), self.surface,
                             self.surface_cov + np.diag(step ** 2))
         v1 = rays1 @ camera.base_from_optical.T
-        fit = self._fit(est.motion, v1, m2, camera, prior, model.focal_px, dt=dt,
-                        inlier_threshold=inlier_threshold, start_threshold=start_threshold)
+        fit, prior = self._fit(est.motion, v1, m2, camera, prior, model.focal_px, dt=dt,
+                               inlier_threshold=inlier_threshold, start_threshold=start_threshold)
         fit, rough = self._without_bands(fit, est.motion, v1, m2, camera, prior,
                                          model.focal_px, inlier_threshold=inlier_threshold,
                                          start_threshold=start_threshold,
@@ -201,13 +201,28 @@ class LocalGroundFilter:
 
     def _fit(self, motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
              prior: GroundPrior, focal_px: float, *, dt: float, inlier_threshold: float,
-             start_threshold: float) -> LocalGroundResult:
-        """The pair refined over the local ground; once more through a jolt if it is lost."""
+             start_threshold: float) -> tuple[LocalGroundResult, GroundPrior]:
+        """The pair refined over the local ground, and the prior it used.
+
+        Once more through a jolt if it is lost, or with the height change's upper bound if a
+        wheel lifted.
+        """
         try:
-            return refine_on_local_ground(
+            fit = refine_on_local_ground(
                 motion, v1, m2, camera, prior, focal_px=focal_px,
                 threshold_px=inlier_threshold, start_threshold_px=start_threshold,
                 hinge=self.hinge, cauchy=_CAUCHY)
+            if self._wheel_lift(fit.rotation, dt) <= _IRREGULAR_LIFT:
+                return fit, prior
+            # A rear wheel climbing a bump lifts base_link 5-8 cm within a frame, far past
+            # the height's rate learned on the road before: that prior held the lift to 80 %
+            # and the step took the rest (+10-24 mm a bump on a rendered 8 cm bump).
+            rates2 = np.r_[self.rate2[:2], self.rates[2] ** 2]
+            lifted = GroundPrior(np.diag(rates2 * dt * dt), prior.surface, prior.surface_cov)
+            return refine_on_local_ground(
+                motion, v1, m2, camera, lifted, focal_px=focal_px,
+                threshold_px=inlier_threshold, start_threshold_px=start_threshold,
+                hinge=self.hinge, cauchy=_CAUCHY), lifted
         except PoseEstimationError:
             # A jolt beyond the learned rate (a wheel hitting a bump turns the car 1-2 deg
             # in a frame): once more with the rate's upper bound, from a wider threshold.
@@ -223,7 +238,7 @@ class LocalGroundFilter:
                 # corrupt frame) fitted by a rotation.
                 raise PoseEstimationError(
                     'no motion fits the local ground, even as a jolt') from None
-            return fit
+            return fit, jolt
 
     def _without_bands(self, fit: LocalGroundResult, motion: np.ndarray, v1: np.ndarray,
                        m2: np.ndarray, camera: Mounting, prior: GroundPrior, focal_px: float,
@@ -273,8 +288,14 @@ class LocalGroundFilter:
         self.profile = self.profile.with_pair(np.asarray(motion, dtype=float), rotation[:2],
                                               surface, surface_cov, used, self.hinge,
                                               self.rough_ahead)
-        sprung, body = self.sprung.read_tilt(self.profile.camera_tilt(self.hinge, _HALF_TRACK),
-                                             self.tilt_offset, dt, focal_px)
+        seen = self.profile.camera_tilt(self.hinge, _HALF_TRACK)
+        if self.wheel_lift > _IRREGULAR_LIFT:
+            # A wheel on a bump tilts the wheels, not the body: the tilt to the road's chord
+            # is not the body's, and the body's spread is not learned from it (learned, it
+            # let the history's readings over the bump's ground through: +0.2-1.0 deg on a
+            # rigid car with the bump between its axles).
+            seen = None
+        sprung, body = self.sprung.read_tilt(seen, self.tilt_offset, dt, focal_px)
         # The next pair's wheel plane is the camera tilted by the new body tilt: the
         # surface ahead, relative to it, tilts the other way (what the camera saw stays).
         change = body - self.body
