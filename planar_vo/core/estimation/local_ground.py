@@ -81,10 +81,12 @@ class _Transfer:
     few elementwise passes. Gauss-Newton's evaluations were most of the local ground's cost.
     """
 
-    def __init__(self, v1: np.ndarray, m2: np.ndarray, mounting: Mounting, hinge: float):
+    def __init__(self, v1: np.ndarray, m2: np.ndarray, mounting: Mounting, hinge: float,
+                 hinge_height: float = 0.0):
         """``v1``: (3, N) frame-1 rays in base_link; ``m2``: (2, N) seen in frame 2."""
         self.v1, self.m2 = v1, m2
         self.c1 = mounting.position
+        self.above_hinge = self.c1[2] - hinge_height  # the camera's height over the road there
         self.optical_from_base = mounting.base_from_optical.T
         self.offset = np.zeros(12)  # o = G lifted - optical_from_base c1
         self.offset[:3] = -self.optical_from_base @ self.c1
@@ -97,7 +99,7 @@ class _Transfer:
         v1 = self.v1
         A = surface @ self.dA
         B = surface @ self.dB - v1[2]
-        C = surface @ self.dC - self.c1[2]
+        C = surface @ self.dC - self.above_hinge
         disc = B * B - 4.0 * A * C
         hit = (disc > 0.0) & (B > 1e-9)
         root = np.sqrt(np.where(hit, disc, 1.0))
@@ -155,7 +157,8 @@ def ray_coefficients(origin: np.ndarray, directions: np.ndarray,
 
 
 def surface_residuals(params: np.ndarray, v1: np.ndarray, m2: np.ndarray, mounting: Mounting,
-                      hinge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      hinge: float, hinge_height: float = 0.0,
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Residuals (2, N), Jacobian (11, 2, N) and validity (N,) of the transfer over the surface.
 
     Args:
@@ -164,14 +167,17 @@ def surface_residuals(params: np.ndarray, v1: np.ndarray, m2: np.ndarray, mounti
         m2: (2, N) observed frame-2 normalized image coordinates.
         mounting: camera 1 in base_link 1 (camera 2 is it after the motion and rotation).
         hinge: x (m, base_link) where the surface leaves the wheel plane (the front axle).
+        hinge_height: the road's height there above the wheel plane, m (below it while the
+            front wheels stand on a bump).
     """
-    return _Transfer(v1, m2, mounting, hinge)(params)
+    return _Transfer(v1, m2, mounting, hinge, hinge_height)(params)
 
 
 def refine_on_local_ground(
     motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, mounting: Mounting,
     prior: GroundPrior, *, focal_px: float, threshold_px: float, hinge: float,
     start_threshold_px: float | None = None, cauchy: float = 1.0, iterations: int = 8,
+    hinge_height: float = 0.0,
 ) -> LocalGroundResult:
     """Gauss-Newton over (motion, frame-2 rotation, surface) with priors and Cauchy weights.
 
@@ -198,7 +204,7 @@ def refine_on_local_ground(
     wide = max(threshold_px, start_threshold_px or threshold_px)
     iterations += int(np.ceil(np.log2(wide / threshold_px)))
     inliers = np.zeros(len(v1), bool)
-    transfer = _Transfer(v1_t, m2_t, mounting, hinge)
+    transfer = _Transfer(v1_t, m2_t, mounting, hinge, hinge_height)
     for i in range(iterations + 1):
         threshold = max(threshold_px, wide * 0.5 ** i)
         r, J, front = transfer(params)

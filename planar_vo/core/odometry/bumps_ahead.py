@@ -1,0 +1,76 @@
+"""Speed bumps seen ahead, remembered until the wheels have passed them.
+
+A bump's own tracks bend the smooth surface of the local ground onto it, a frame at a time,
+while it comes closer (measured on rendered 8 cm bumps: the curvature 0.006 -> 0.08 /m over
+2 m, +60 to +250 mm of along-track error a drive), and once bent the surface hides the bump
+from the test of bands off it. Seen once where it first stands out (at the far edge of the
+tracks, against the surface before), a bump is remembered in base_link, moved on with each
+pair, and its tracks are left out until it has passed under the camera.
+
+While the front wheels stand on it the road past the front axle is below the wheels' plane,
+which no surface hinged there can hold without a height at the hinge: the front wheels'
+height is summed from the pairs' lifts (the height change at the front axle less the smooth
+road's) while a remembered bump is at the front axle. Numpy only; no ROS.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ['BumpsAhead']
+
+# Tracks whose ray meets the wheel plane from this far before a bump to BAND_REACH past it
+# are its own (a band's rays meet the wheel plane up to 0.4 m beyond the bump).
+_BEFORE = 0.6
+_SAME = 2.0  # m: a band this close to a remembered bump is that bump (or its shadow)
+_GONE = 1.0  # m past the camera: passed under its view, forgotten
+# The front wheels are on a remembered bump from this far before the front axle to this far
+# past it; off it, their height decays by this factor a pair (a bump is a frame or two long).
+_FRONT_BEFORE = 1.0
+_FRONT_AFTER = 0.6
+_FRONT_DECAY = 0.3
+
+
+@dataclass(frozen=True)
+class BumpsAhead:
+    """Bumps seen ahead (x in base_link, m) and the front wheels' height on one (m)."""
+
+    ahead: tuple = ()
+    front_height: float = 0.0
+
+    def hides(self, distance: np.ndarray, reach: float) -> np.ndarray:
+        """Which tracks (N,) bool lie on a remembered bump.
+
+        ``distance``: where their rays meet the wheel plane (m); ``reach``: how far past a
+        bump they still do.
+        """
+        hidden = np.zeros(len(distance), bool)
+        for x in self.ahead:
+            hidden |= (distance > x - _BEFORE) & (distance < x + reach)
+        return hidden
+
+    def seen(self, distance: np.ndarray, band: float) -> BumpsAhead:
+        """Self with the bands of tracks at ``distance`` (m) remembered as bumps."""
+        ahead = list(self.ahead)
+        for b in np.unique(np.floor(distance / band)):
+            centre = float(np.mean(distance[np.floor(distance / band) == b]))
+            if not any(abs(centre - x) < _SAME for x in ahead):
+                ahead.append(centre)
+        return BumpsAhead(tuple(sorted(ahead)), self.front_height)
+
+    def lifted(self, rise: float | None, hinge: float) -> BumpsAhead:
+        """Self after a pair.
+
+        ``rise``: the front axle's rise above the smooth road (m) if a wheel lifted, else None.
+        """
+        on_front = any(-_FRONT_BEFORE < x - hinge < _FRONT_AFTER for x in self.ahead)
+        if rise is not None and on_front:
+            return BumpsAhead(self.ahead, self.front_height + rise)
+        return BumpsAhead(self.ahead, self.front_height * _FRONT_DECAY)
+
+    def moved(self, travel: float, camera_x: float) -> BumpsAhead:
+        """Self in base_link after ``travel`` m forward; bumps past the camera's view go."""
+        ahead = tuple(x - travel for x in self.ahead if x - travel > camera_x + _GONE)
+        return BumpsAhead(ahead, self.front_height)

@@ -1,0 +1,118 @@
+"""Speed bumps seen ahead: found by their faster flow, remembered, and the front wheels on one.
+
+Closed-form views of a flat road with a bump band (the geometry written out in
+test_terrain._observe, independently of the code under test).
+"""
+
+import numpy as np
+
+from planar_vo.core.estimation.local_ground import GroundPrior, refine_on_local_ground
+from planar_vo.core.estimation.ransac import RansacResult, TransferModel
+from planar_vo.core.odometry.bumps_ahead import BumpsAhead
+from planar_vo.core.odometry.ground_filter import LocalGroundFilter
+from planar_vo.core.odometry.surface_bands import faster_bands, wheel_plane_distance
+from test.test_terrain import HINGE, MOUNT, _observe
+
+STEP = np.array([0.3, 0.0, 0.0])
+
+
+def _view(points, motion=STEP):
+    """(v1 in base_link, m1, m2) of ``points`` (base-1 coordinates) over ``motion``."""
+    m1, m2 = _observe(points, MOUNT, motion, np.zeros(2))
+    v1 = np.c_[m1, np.ones(len(m1))] @ MOUNT.base_from_optical.T
+    return v1, m1, m2
+
+
+def _road(rng, z, count=800):
+    x, y = rng.uniform(3.1, 6.5, count), rng.uniform(-2.0, 2.0, count)
+    return np.c_[x, y, z(x, y)]
+
+
+def test_a_bump_s_band_moves_faster_than_the_road_around_it_and_a_hill_s_does_not():
+    """An 8 cm bump 5.0-5.5 m ahead: a band its rays meet the wheel plane in is found, nearly
+    all of it on the bump, and remembered, it hides the bump's tracks. The flat road and a
+    hill of the drives' largest curvature (0.03 /m) over the surface before: nothing."""
+    rng = np.random.default_rng(2)
+    points = _road(rng, lambda x, y: np.where((x > 5.0) & (x < 5.5), 0.08, 0.0))
+    on_bump = points[:, 2] > 0
+    v1, m1, m2 = _view(points)
+    found = faster_bands(STEP, np.zeros(3), np.zeros(5), v1, m1, m2, MOUNT, HINGE)
+    assert found.any() and np.mean(on_bump[found]) > 0.8
+    distance = wheel_plane_distance(MOUNT, v1)
+    hidden = BumpsAhead().seen(distance[found], 0.5).hides(distance, 0.75)
+    assert np.mean(hidden[on_bump]) > 0.9
+    assert np.mean(hidden[~on_bump]) < 0.3
+    hill = np.array([0.0, 0.0, 0.03, 0.0, 0.0])
+    for surface in (np.zeros(5), hill):
+        v1, m1, m2 = _view(_road(rng, lambda x, y, k=surface[2]: 0.5 * k * (x - HINGE) ** 2))
+        assert not faster_bands(STEP, np.zeros(3), surface, v1, m1, m2, MOUNT, HINGE).any()
+
+
+def test_the_front_wheels_on_a_bump_need_the_road_s_height_at_the_hinge():
+    """The front wheels 7 cm up on a long bump: the road past the front axle is 7 cm below
+    the wheels' plane there and falls away from it. Given that height, the step comes out
+    exact; without it, centimetres off (no surface through the hinge holds that road)."""
+    rng = np.random.default_rng(4)
+    lift = 0.07
+    points = _road(rng, lambda x, y: -lift * x / HINGE)
+    v1, _, m2 = _view(points)
+    prior = GroundPrior(np.diag([0.02, 0.02, 0.01]) ** 2, np.zeros(5),
+                        np.diag([0.05, 0.05, 0.03, 0.03, 0.03]) ** 2)
+
+    def step(hinge_height):
+        return refine_on_local_ground(STEP + [0.01, 0.0, 0.0], v1, m2, MOUNT, prior,
+                                      focal_px=500.0, threshold_px=2.0, hinge=HINGE,
+                                      start_threshold_px=20.0, iterations=20,
+                                      hinge_height=hinge_height).motion
+
+    np.testing.assert_allclose(step(-lift), STEP, atol=1e-5)
+    assert abs(step(0.0)[0] - STEP[0]) > 0.005
+
+
+def test_a_bump_is_remembered_until_it_has_passed_and_found_once():
+    """Bands near a remembered bump are that bump; moving on shifts it; it is forgotten once
+    past the camera's view. Its tracks are hidden, from a little before it to ``reach``."""
+    bumps = BumpsAhead().seen(np.array([6.1, 6.2, 6.3]), 0.5)
+    assert bumps.ahead == (6.2,)
+    assert bumps.seen(np.array([5.0, 7.9]), 0.5).ahead == (6.2,)
+    assert bumps.seen(np.array([9.0]), 0.5).ahead == (6.2, 9.0)
+    hidden = bumps.hides(np.array([5.0, 5.8, 6.2, 6.9, 7.1]), 0.75)
+    np.testing.assert_array_equal(hidden, [False, True, True, True, False])
+    moved = bumps.moved(1.0, camera_x=1.2)
+    np.testing.assert_allclose(moved.ahead, [5.2])
+    assert moved.moved(3.0, camera_x=1.2).ahead == ()
+
+
+def test_the_front_wheels_height_is_summed_only_on_a_remembered_bump():
+    """A lift sums into the front wheels' height while a bump is at the front axle; elsewhere
+    (a hill's pitch) it does not, and the height fades once the wheels are off."""
+    on = BumpsAhead((HINGE + 0.2,)).lifted(0.06, HINGE)
+    assert on.front_height == 0.06
+    assert BumpsAhead((HINGE + 3.0,)).lifted(0.06, HINGE).front_height == 0.0
+    assert on.lifted(None, HINGE).front_height < 0.02
+
+
+def test_a_bump_coming_into_view_is_found_where_it_is():
+    """Driving a flat road towards an 8 cm bump: once it comes into the far tracks the filter
+    remembers it within half a metre of where it is, and keeps it there as it comes closer."""
+    rng = np.random.default_rng(9)
+    ground = LocalGroundFilter(MOUNT, rates=np.array([0.5, 0.5, 0.3]), hinge=HINGE,
+                               self_calibrate=False)
+    model = TransferModel(*MOUNT.ground_to_optical(), 500.0, MOUNT)
+    bump_x = 12.0
+    for k in range(26):
+        position = 0.3 * k
+        points = _road(rng, lambda x, y, p=position: np.where(np.abs(x + p - bump_x) < 0.35,
+                                                               0.08, 0.0))
+        v1, m1, m2 = _view(points)
+        m2 = m2 + rng.normal(0.0, 0.1 / 500.0, m2.shape)
+        start = RansacResult(STEP.copy(), np.eye(3) * 1e-4, np.ones(len(m1), bool), 1, 0.2)
+        result, _ = ground.refine(start, np.c_[m1, np.ones(len(m1))], m2, MOUNT, model,
+                                  dt=0.05, inlier_threshold=2.0, start_threshold=8.0,
+                                  min_inliers=10)
+        ground.advance(result.motion)
+        ahead = bump_x - (position + 0.3)
+        if ahead < 6.0:
+            assert len(ground.bumps.ahead) == 1
+            assert abs(ground.bumps.ahead[0] - ahead) < 0.5
+    assert wheel_plane_distance(MOUNT, v1).max() > 6.0
