@@ -71,7 +71,8 @@ def test_the_front_wheels_on_a_bump_need_the_road_s_height_at_the_hinge():
 
 def test_a_bump_is_remembered_until_it_has_passed_and_found_once():
     """Bands near a remembered bump are that bump; moving on shifts it; it is forgotten once
-    past the camera's view. Its tracks are hidden, from a little before it to ``reach``."""
+    past the camera's view, or when reversing. Its tracks are hidden, from a little before it
+    to ``reach``."""
     bumps = BumpsAhead().seen(np.array([6.1, 6.2, 6.3]), 0.5)
     assert bumps.ahead == (6.2,)
     assert bumps.seen(np.array([5.0, 7.9]), 0.5).ahead == (6.2,)
@@ -81,6 +82,7 @@ def test_a_bump_is_remembered_until_it_has_passed_and_found_once():
     moved = bumps.moved(1.0, camera_x=1.2)
     np.testing.assert_allclose(moved.ahead, [5.2])
     assert moved.moved(3.0, camera_x=1.2).ahead == ()
+    assert bumps.moved(-0.1, camera_x=1.2).ahead == ()  # reversing: it was seen going forward
 
 
 def test_the_front_wheels_height_is_summed_only_on_a_remembered_bump():

@@ -71,6 +71,12 @@ class BumpsAhead:
         return BumpsAhead(self.ahead, self.front_height * _FRONT_DECAY)
 
     def moved(self, travel: float, camera_x: float) -> BumpsAhead:
-        """Self in base_link after ``travel`` m forward; bumps past the camera's view go."""
+        """Self in base_link after ``travel`` m forward.
+
+        Bumps past the camera's view go, and all of them when reversing (they were seen on the
+        way forward).
+        """
+        if travel < 0.0:
+            return BumpsAhead((), self.front_height)
         ahead = tuple(x - travel for x in self.ahead if x - travel > camera_x + _GONE)
         return BumpsAhead(ahead, self.front_height)

@@ -70,10 +70,10 @@ _IRREGULAR_LIFT = 0.01  # m: a wheel lifted this far makes the ground irregular
 _CALM_CURVATURE = 0.01
 _TERRAIN_CORRELATION_S = 3.0
 _SHRINK_SIGMAS = 2.0
-# Bumps are looked for (faster_bands) once the rates are learned, on pairs without a lift,
-# over a surface whose curvatures are under this (1/m): on the rendered drives over hills,
-# grades and a crown together, looking at 0.01 /m found bands of hills for bumps (all four
-# 0.18 -> 0.28 %).
+# Bumps are looked for (faster_bands) once the rates are learned, on pairs driving forward
+# without a lift, over a surface whose curvatures are under this (1/m): on the rendered drives
+# over hills, grades and a crown together, looking at 0.01 /m found bands of hills for bumps
+# (all four 0.18 -> 0.28 %).
 _BUMP_PAIRS = 10
 _BUMP_CURVATURE = 0.005
 _HALF_TRACK = 1.0  # m either side of base_link whose remembered road the wheels stand on
@@ -309,6 +309,7 @@ class LocalGroundFilter:
         """The bumps ahead after the pair: those it shows, and the front wheels' height."""
         bumps = self.bumps
         if (lifted <= _IRREGULAR_LIFT and self.rate_samples >= _BUMP_PAIRS
+                and fit.motion[0] > 0.0
                 and np.all(np.abs(prior.surface[2:]) < _BUMP_CURVATURE)):
             faster = faster_bands(fit.motion, fit.rotation, prior.surface, v1,
                                   rays1[:, :2] / rays1[:, 2:], m2, camera, self.hinge,

@@ -36,6 +36,7 @@ _MIN_SIGMA_PX = 0.05
 # own fit cannot bend onto them first. Over _FASTER_MAX it is no bump (a box, a car).
 _FASTER = 0.02
 _FASTER_MAX = 0.15
+_ACROSS = 0.05
 
 
 def refit_consistent(again: LocalGroundResult, fit: LocalGroundResult) -> bool:
@@ -107,9 +108,12 @@ def faster_bands(motion: np.ndarray, rotation: np.ndarray, surface: np.ndarray,
     r, _, valid = surface_residuals(params, np.ascontiguousarray(v1.T),
                                     np.ascontiguousarray(m2.T), camera, hinge, hinge_height)
     flow = m2.T + r - m1.T  # predicted
-    faster = -(r * flow).sum(axis=0) / np.maximum((flow * flow).sum(axis=0), 1e-12)
+    length2 = np.maximum((flow * flow).sum(axis=0), 1e-12)
+    faster = -(r * flow).sum(axis=0) / length2
+    across = (r[0] * flow[1] - r[1] * flow[0]) / length2
     band = np.floor(wheel_plane_distance(camera, v1) / BAND_M).astype(int)
-    ok = valid & np.isfinite(faster)
+    # A track off across its flow, or far faster, is on something else (a passing car).
+    ok = valid & np.isfinite(faster) & (np.abs(faster) < _FASTER_MAX) & (np.abs(across) < _ACROSS)
     median = {}
     for b in np.unique(band[ok]):
         members = ok & (band == b)
