@@ -231,8 +231,12 @@ def test_set_pose_then_reset(ros, io, node_io, bag):
     assert planar_pose(odom.pose.pose).tolist() == [0.0, 0.0, 0.0]
 
 
-def _wait_for_status(client, level, text, timeout=20.0, keep_sending=None):
-    """Until a diagnostics status of ``level`` whose message has ``text`` arrives."""
+def _wait_for_status(client, level, text, timeout=20.0, keep_sending=None, state=None):
+    """Until a diagnostics status of ``level`` whose message has ``text`` arrives.
+
+    ``state``: and whose last frame's state is that (the first frame's, 'first', is OK with
+    no inliers yet).
+    """
     end = time.monotonic() + timeout
     seen = len(client.statuses())
     while time.monotonic() < end:
@@ -241,7 +245,8 @@ def _wait_for_status(client, level, text, timeout=20.0, keep_sending=None):
         else:
             time.sleep(0.05)
         for st in client.statuses()[seen:]:
-            if st.level == level and text in st.message:
+            values = {kv.key: kv.value for kv in st.values}
+            if st.level == level and text in st.message and state in (None, values.get('state')):
                 return st
     got = [(st.level, st.message) for st in client.statuses()[-5:]]
     raise AssertionError(f'no diagnostics {level} {text!r} within {timeout} s; last: {got}')
@@ -274,7 +279,7 @@ def _diagnostics_ok_stale_lost(io, frames, DiagnosticStatus):  # noqa: N803 - a 
         sent.append(send_lockstep(io.image_pub, io.info_pub, frames.info(k), frames.image(k),
                                   io.odoms))
 
-    ok = _wait_for_status(io, DiagnosticStatus.OK, 'tracking', keep_sending=good)
+    ok = _wait_for_status(io, DiagnosticStatus.OK, 'tracking', keep_sending=good, state='ok')
     values = {kv.key: kv.value for kv in ok.values}
     assert ok.hardware_id == 'camera_optical_frame'
     assert float(values['image rate (Hz)']) > 0.0 and int(values['tracks']) > 50
