@@ -188,9 +188,7 @@ class LocalGroundFilter:
             raise PoseEstimationError(f'{count} inliers, fewer than {min_inliers}')
         if hidden.any():
             fit = _on_all_tracks(fit, shown, len(v1))
-            remembered = np.array(self.bumps.ahead)
-            rough = rough | np.any(np.abs((self.hinge + SAMPLES_AHEAD)[:, None]
-                                          - remembered[None, :]) < BAND_REACH, axis=1)
+            rough = rough | self._samples_near(np.array(self.bumps.ahead))
         lifted = self._wheel_lift(fit.rotation, dt)
         self.bumps = self._bumps_after(fit, prior, lifted, rays1, v1, m2, camera, distance)
         self.surface, self.surface_cov = fit.surface, fit.surface_cov
@@ -283,8 +281,7 @@ class LocalGroundFilter:
         if keep is None:
             return fit, rough
         went = wheel_plane_distance(camera, v1[~keep])
-        rough = np.any(np.abs(went[None, :] - (self.hinge + SAMPLES_AHEAD)[:, None])
-                       < BAND_REACH, axis=1)
+        rough = self._samples_near(went)
         if np.count_nonzero(keep) < min_inliers:
             return fit, rough
         try:
@@ -302,6 +299,14 @@ class LocalGroundFilter:
         weights = np.zeros(len(v1))
         weights[keep] = again.weights
         return dataclasses.replace(again, inliers=inliers, weights=weights), rough
+
+    def _samples_near(self, xs: np.ndarray) -> np.ndarray:
+        """Which of the road history's samples ahead lie near a band or bump.
+
+        ``xs``: where the bands or bumps are (m, base_link); near: within BAND_REACH.
+        """
+        ahead = self.hinge + SAMPLES_AHEAD
+        return np.any(np.abs(ahead[:, None] - xs[None, :]) < BAND_REACH, axis=1)
 
     def _bumps_after(self, fit: LocalGroundResult, prior: GroundPrior, lifted: float,
                      rays1: np.ndarray, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
