@@ -189,7 +189,7 @@ class LocalGroundFilter:
         if hidden.any():
             fit = _on_all_tracks(fit, shown, len(v1))
             rough = rough | self._samples_near(np.array(self.bumps.ahead))
-        lifted = self._wheel_lift(fit.rotation, dt)
+        lifted = self._wheel_lift(fit.rotation, dt, travel)
         self.bumps = self._bumps_after(fit, prior, lifted, rays1, v1, m2, camera, distance)
         self.surface, self.surface_cov = fit.surface, fit.surface_cov
         # Weight 0.1: a residual 3 sigma off the surface (1 % of Gaussian noise).
@@ -234,7 +234,8 @@ class LocalGroundFilter:
                 threshold_px=inlier_threshold, start_threshold_px=start_threshold,
                 hinge=self.hinge, cauchy=_CAUCHY,
                 hinge_height=-self.bumps.front_height)
-            if self._wheel_lift(fit.rotation, dt) <= _IRREGULAR_LIFT:
+            travel = float(np.hypot(motion[0], motion[1]))
+            if self._wheel_lift(fit.rotation, dt, travel) <= _IRREGULAR_LIFT:
                 return fit, prior
             # A rear wheel climbing a bump lifts base_link 5-8 cm within a frame, far past
             # the height's rate learned on the road before: that prior held the lift to 80 %
@@ -378,9 +379,19 @@ class LocalGroundFilter:
         xy = camera[:2] + scale[:, None] * (points - camera[:2])
         return xy, camera[2] * (1.0 - scale)
 
-    def _wheel_lift(self, rotation: np.ndarray, dt: float) -> float:
-        """How far a wheel was lifted (m): the rotation beyond what the body turns."""
-        beyond = np.maximum(np.abs(rotation[:2])
+    def _wheel_lift(self, rotation: np.ndarray, dt: float, travel: float) -> float:
+        """How far a wheel was lifted (m): the rotation beyond what the body turns.
+
+        A pitch the remembered road explains (a hill's curve under the wheels) lifts no wheel
+        (on a rendered drive over hills, grades, camber and bumps, 20 of 59 lifts were such,
+        and t_rel was 0.57 % with them, 0.29 without). Near a bump the road's history is
+        unsure, so the smaller of the pitch and its excess over the road's counts.
+        """
+        pitch = self.profile.pitch_change(self.hinge, _HALF_TRACK, travel)
+        turn = np.abs(rotation[:2])
+        if pitch is not None:
+            turn[1] = min(turn[1], abs(rotation[1] - pitch))
+        beyond = np.maximum(turn
                             - _WHEEL_LIFT_SIGMAS * np.sqrt(self.sprung.rate2) * dt, 0.0)
         return float(_HALF_TRACK * beyond[0] + self.hinge * beyond[1])
 
