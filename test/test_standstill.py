@@ -107,14 +107,20 @@ def test_a_sixty_second_stop_at_a_red_light_with_crossing_traffic():
 
 
 def test_pulling_away_from_a_stop_has_no_jump():
-    """One second after each stop the pose is as good as before it (no restart, no jump)."""
+    """One second after each stop the pose is as good as before it (no restart, no jump).
+
+    A restart's lost frame alone would be 5 cm at 1 m/s. The error the pose gains in the
+    first second is what a second of driving gains: measured 2-12 mm over the four stops,
+    while one second of driving at speed gains 7-9 mm (median) and up to 23-34 mm on this
+    drive, which moves by some millimetres with any change to the estimator (8.8, 9.2 and
+    12.3 mm at the first stop for three settings of the static tilt's shrinkage)."""
     results, truth, _, traj, _, _ = stop_drive('stop_and_go', 20.0)
     statuses = {r.status for r in results}
     assert statuses <= {'first', 'ok'}, statuses
     for _, b in stops_of(traj)[:-1]:
         before = np.array(results[b].pose) - truth[b]
         after = np.array(results[b + 20].pose) - truth[b + 20]
-        assert np.hypot(*(after - before)[:2]) < 0.01  # < 1 cm in the first second
+        assert np.hypot(*(after - before)[:2]) < 0.02  # < 2 cm in the first second
         assert not results[b + 20].stationary
 
 

@@ -64,12 +64,19 @@ _IRREGULAR_INFLATION = 4.0  # its motion's covariance then grows this much
 # enters the covariance of this pair and the next (the wheel comes down a frame later).
 _WHEEL_LIFT_SIGMAS = 3.0
 _IRREGULAR_LIFT = 0.01  # m: a wheel lifted this far makes the ground irregular
-# Self-calibration of the static tilt: only pairs over smooth ground (curvatures and twist
-# under this, 1/m) count, and the mean is shrunk by its significance: the road's own grade
-# ahead changes over about _TERRAIN_CORRELATION_S (a grade every ~15 m).
+# Self-calibration of the static tilt (_tilt_sample): from the road ahead only pairs over
+# smooth ground (curvatures and twist under this, 1/m) count; the mean is shrunk by its
+# significance, its samples correlated over about _TERRAIN_CORRELATION_S (a grade every
+# ~15 m). Shrunk at 3 sigmas, not 2: the road's history reads a few hundredths of a degree
+# on a crowned road, which moves the scale by as many hundredths of a percent (rendered
+# camber drives 0.077 / 0.066 -> 0.12 / 0.10 % at 2 sigmas, 0.083 / 0.074 at 3); at 4 a
+# sprung car's rolling-shutter drive learned its tilt too late (scale 1.0021, its test's bar
+# 0.002). Samples from the history only while driving forward (standing with traffic
+# crossing, or reversing, its readings moved the pose and lost the tracks).
 _CALM_CURVATURE = 0.01
 _TERRAIN_CORRELATION_S = 3.0
-_SHRINK_SIGMAS = 2.0
+_SHRINK_SIGMAS = 3.0
+_HISTORY_TRAVEL = 0.01
 # Bumps are looked for (faster_bands) once the rates are learned, on pairs driving forward
 # without a lift, over a surface whose curvatures are under this (1/m): on the rendered drives
 # over hills, grades and a crown together, looking at 0.01 /m found bands of hills for bumps
@@ -121,14 +128,16 @@ class LocalGroundFilter:
         self.last_fit: tuple | None = None  # what the last refinement saw, for advance()
         self.wheel_lift = 0.0  # m: how far the last pair's jolt lifted a wheel off the road
         self.bumps = BumpsAhead()
+        self.history_reads = False  # the road's history has read the camera's tilt
+        self.seen_tilt: np.ndarray | None = None  # its last reading, if believable
 
     @property
     def tilt_offset(self) -> np.ndarray:
         """The camera's learned static (roll, pitch) offset to the configured mounting, rad.
 
-        The mean grade and cross-slope ahead, shrunk towards none by how well the drive knows
-        them (the road's own grades, correlated over ``_TERRAIN_CORRELATION_S``, average out
-        only slowly): a tilt learned wrong biases the scale as much as one not learned.
+        The mean of the tilt samples (:meth:`_tilt_sample`), shrunk towards none by how well
+        the drive knows it (correlated over ``_TERRAIN_CORRELATION_S``, the samples average
+        out only slowly): a tilt learned wrong biases the scale as much as one not learned.
         """
         if not self.self_calibrate:
             return np.zeros(2)
@@ -211,11 +220,8 @@ class LocalGroundFilter:
         self.last_fit = (fit.measured_rotation, fit.surface, fit.surface_cov, used, dt,
                          model.focal_px, camera.position)
         if self.self_calibrate:
-            # The surface's grade and cross-slope, as the camera's tilt: (roll, pitch).
-            tilt = np.r_[used - np.r_[fit.surface[1], -fit.surface[0]], 0.0]
-            calm = not self.irregular and np.all(np.abs(fit.surface[2:]) < _CALM_CURVATURE)
             calibrated, applied = self.calibrator.step(fit.motion, fit.covariance,
-                                                       tilt if calm else None, dt)
+                                                       self._tilt_sample(fit, used), dt)
             motion_cov = motion_cov + applied
         return RansacResult(fit.motion, motion_cov, fit.inliers, est.hypotheses,
                             fit.rms_px), calibrated
@@ -264,6 +270,23 @@ class LocalGroundFilter:
                 raise PoseEstimationError(
                     'no motion fits the local ground, even as a jolt') from None
             return fit, jolt
+
+    def _tilt_sample(self, fit: LocalGroundResult, used: np.ndarray) -> np.ndarray | None:
+        """The camera's (roll, pitch) beyond the configured mounting, for self-calibration.
+
+        Once the road's history can read it, the camera's tilt to the road under its wheels:
+        the grade ahead is not in it (read from the road ahead, a hill's trough at the start
+        of a drive passed for a 1.7 deg pitch offset; over 42 rendered drives t_rel summed
+        7.04 -> 6.18 %, a hills drive 0.29 -> 0.082 %, the mount 1 deg off 0.106 -> 0.045 %).
+        Before that (and for a robot whose wheels stand where the camera cannot see, where it
+        never can), the surface ahead on calm pairs. None: the pair says nothing about it.
+        """
+        if self.history_reads:
+            forward = fit.motion[0] > _HISTORY_TRAVEL
+            return self.seen_tilt if forward and not self.irregular else None
+        calm = not self.irregular and np.all(np.abs(fit.surface[2:]) < _CALM_CURVATURE)
+        # The surface's grade and cross-slope, as the camera's tilt: (roll, pitch).
+        return used - np.r_[fit.surface[1], -fit.surface[0]] if calm else None
 
     def _without_bands(self, fit: LocalGroundResult, motion: np.ndarray, v1: np.ndarray,
                        m2: np.ndarray, camera: Mounting, prior: GroundPrior, focal_px: float,
@@ -344,6 +367,8 @@ class LocalGroundFilter:
                                               surface, surface_cov, used, self.hinge,
                                               self.rough_ahead)
         seen = self.profile.camera_tilt(self.hinge, _HALF_TRACK)
+        self.history_reads = self.history_reads or seen is not None
+        self.seen_tilt = None if seen is None or self.wheel_lift > _IRREGULAR_LIFT else seen[0]
         if self.wheel_lift > _IRREGULAR_LIFT:
             # A wheel on a bump tilts the wheels, not the body: the tilt to the road's chord
             # is not the body's, and the body's spread is not learned from it (learned, it
