@@ -76,7 +76,7 @@ _IRREGULAR_LIFT = 0.01  # m: a wheel lifted this far makes the ground irregular
 _CALM_CURVATURE = 0.01
 _TERRAIN_CORRELATION_S = 3.0
 _SHRINK_SIGMAS = 3.0
-_HISTORY_TRAVEL = 0.01
+_HISTORY_TRAVEL = 0.01  # m: a pair this far forward gives the history's reading
 # Bumps are looked for (faster_bands) once the rates are learned, on pairs driving forward
 # without a lift, over a surface whose curvatures are under this (1/m): on the rendered drives
 # over hills, grades and a crown together, looking at 0.01 /m found bands of hills for bumps
