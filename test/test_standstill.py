@@ -112,8 +112,8 @@ def test_pulling_away_from_a_stop_has_no_jump():
     A restart's lost frame alone would be 5 cm at 1 m/s. The error the pose gains in the
     first second is what a second of driving gains: measured 2-12 mm over the four stops,
     while one second of driving at speed gains 7-9 mm (median) and up to 23-34 mm on this
-    drive, which moves by some millimetres with any change to the estimator (8.8, 9.2 and
-    12.3 mm at the first stop for three settings of the static tilt's shrinkage)."""
+    drive, which moves by some millimetres with any change to the estimator (8.6, 8.8 and
+    12.3 mm at the first stop with the static tilt shrunk at 4, 2 and 3 sigmas)."""
     results, truth, _, traj, _, _ = stop_drive('stop_and_go', 20.0)
     statuses = {r.status for r in results}
     assert statuses <= {'first', 'ok'}, statuses
