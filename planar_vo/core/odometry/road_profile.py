@@ -103,8 +103,11 @@ class RoadProfile:
         The chord turns by the gradient the front wheels meet less the one the rear wheels
         leave, times the travel over the wheelbase (on the rendered hills this explains the
         pitch between frames to 0.01-0.02 deg, of 0.05-0.17 deg rms). None until the road
-        under both has been seen; ground seen irregular is left out.
+        under both has been seen (never for a robot whose wheels share an axle, wheelbase 0);
+        ground seen irregular is left out.
         """
+        if wheelbase <= 0.0:
+            return None
         x, y = self.points[:, 0], self.points[:, 1]
         smooth = (np.abs(y) <= half_track) & ~self.rough
         reach = max(travel, wheelbase / _BINS)

@@ -435,6 +435,9 @@ class VisualOdometry:
         p1, v1 = mounting.ground_points(rays1, self.horizon_margin)
         p2, v2 = mounting.ground_points(rays_through(m2), self.horizon_margin)
         ok = v1 & v2
+        if self.ground is not None:  # on uneven ground only the tracks its surface holds
+            ok &= self.ground.within_reach(
+                np.where(ok, np.hypot(*(p1 - mounting.position[:2]).T), np.nan))
         if self._tilt_filter is not None:
             ok &= self.front.window_inside(ref_px) & self.front.window_inside(cur_px)
         n = int(np.count_nonzero(ok))
