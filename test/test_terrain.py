@@ -294,10 +294,15 @@ def test_the_far_tracks_are_left_out_only_where_the_ground_ahead_bends():
     for terrain in ('flat', 'hills'):
         camera, mount, images, _, _ = _render(terrain)
         vo = VisualOdometry.from_params(camera, config.validate(config.mounting_params(mount)))
-        reach = []
+        reach, said = [], set()
         for k, image in enumerate(images):
             reach.append(vo.ground.reach())  # what the pair about to be estimated may use
             vo.process(image, k / 20.0)
+            said.add(vo.diagnostics()['tracks used up to (m ahead)'])
         share[terrain] = np.mean(np.isfinite(reach[1:]))
+        if terrain == 'flat':
+            assert said == {'all'}, said
+        else:  # /diagnostics says so; at least three quarters of the tracks are kept
+            assert min(float(x) for x in said - {'all'}) >= 4.1, said
     assert share['flat'] == 0.0, share
     assert share['hills'] > 0.6, share

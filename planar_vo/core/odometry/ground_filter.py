@@ -132,6 +132,7 @@ class LocalGroundFilter:
         self.off_surface = 0.0  # share of the tracks the last pair weighed down
         self.irregular = False
         self.rough_ahead = np.zeros(len(SAMPLES_AHEAD), bool)  # the last pair's, per sample
+        self.used_reach = np.inf  # m from the camera: the last pair's tracks (within_reach)
         self.restart()
 
     def restart(self) -> None:
@@ -182,6 +183,7 @@ class LocalGroundFilter:
         reach = self.reach()
         if np.isfinite(reach) and np.any(np.isfinite(distance)):
             reach = max(reach, float(np.nanquantile(distance, _KEPT_AT_LEAST)))
+        self.used_reach = reach
         return distance <= reach
 
     def hypothesis_threshold(self, inlier_threshold: float, focal_px: float,
@@ -473,6 +475,8 @@ class LocalGroundFilter:
             'cross-slope ahead (%)': f'{100 * er:.2f}',
             'curvature ahead (1/m)': f'{k:.4f}',
             'off-surface tracks (%)': f'{100 * self.off_surface:.1f}',
+            'tracks used up to (m ahead)': (
+                'all' if np.isinf(self.used_reach) else f'{self.used_reach:.1f}'),
             'ground ahead irregular': str(self.irregular),
             'bumps ahead (m)': ', '.join(f'{x:.1f}' for x in self.bumps.ahead) or 'none',
         }
