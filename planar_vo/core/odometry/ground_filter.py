@@ -65,7 +65,7 @@ _IRREGULAR_INFLATION = 4.0  # its motion's covariance then grows this much
 _WHEEL_LIFT_SIGMAS = 3.0
 _IRREGULAR_LIFT = 0.01  # m: a wheel lifted this far makes the ground irregular
 # Self-calibration of the static tilt (_tilt_sample): from the road ahead only pairs over
-# smooth ground (curvatures and twist under this, 1/m) count; the mean is shrunk by its
+# smooth ground (curvatures and twist two sigmas inside this, 1/m) count; the mean is shrunk by its
 # significance, its samples correlated over about _TERRAIN_CORRELATION_S (a grade every
 # ~15 m). Shrunk at 3 sigmas, not 2: the road's history reads a few hundredths of a degree
 # on a crowned road, which moves the scale by as many hundredths of a percent (rendered
