@@ -29,6 +29,7 @@ weigh less. Numpy only; no ROS.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -91,37 +92,51 @@ class _Transfer:
         self.offset = np.zeros(12)  # o = G lifted - optical_from_base c1
         self.offset[:3] = -self.optical_from_base @ self.c1
         self.dA, self.dB, self.dC = ray_coefficients(self.c1, v1, hinge)
+        # Buffers every evaluation fills (allocating them was a tenth of its time).
+        self.maps = np.empty((12, 3))
+        self.do = np.empty((_N, 3, v1.shape[1]))
 
     def __call__(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Residuals (2, N), Jacobian (11, 2, N) and validity (N,) at ``params``."""
-        x, y, yaw, roll, pitch, dh = params[:6]
+        x, y, yaw, roll, pitch, dh = params[:6].tolist()
         surface = params[6:]
         v1 = self.v1
         A = surface @ self.dA
-        B = surface @ self.dB - v1[2]
+        B = surface @ self.dB
+        B -= v1[2]
         C = surface @ self.dC - self.above_hinge
-        disc = B * B - 4.0 * A * C
+        disc = B * B
+        disc -= 4.0 * A * C
         hit = (disc > 0.0) & (B > 1e-9)
         root = np.sqrt(np.where(hit, disc, 1.0))
         s = np.where(hit, -2.0 * C / np.where(hit, B + root, 1.0), 0.0)
         hit &= s > 0.0
         # ds/dtheta = -(s^2 dA + s dB + dC) / (2 A s + B), theta the surface terms
-        ds = (s * self.dA + self.dB) * s + self.dC[:, None]
+        ds = self.dA * s
+        ds += self.dB
+        ds *= s
+        ds += self.dC[:, None]
         ds /= -np.where(hit, 2.0 * A * s + B, 1.0)
         # The ground point P = c1 + s v1 in base_link 2 before its rotation is lifted =
         # Y (P - (x, y, dh)), Y the yaw; camera 2 sees o = G lifted - rot c1, G = rot R^T, rot
         # optical_from_base and R = body_tilt(roll, pitch) = Ry Rx, about the contacts.
-        c, sn = np.cos(yaw), np.sin(yaw)
-        cp, sp, cr, sr = np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+        c, sn = math.cos(yaw), math.sin(yaw)
+        cp, sp, cr, sr = math.cos(pitch), math.sin(pitch), math.cos(roll), math.sin(roll)
         ry_t = np.array([[cp, 0.0, -sp], [0.0, 1.0, 0.0], [sp, 0.0, cp]])
         rx_t = np.array([[1.0, 0.0, 0.0], [0.0, cr, sr], [0.0, -sr, cr]])
         d_ry_t = np.array([[-sp, 0.0, -cp], [0.0, 0.0, 0.0], [cp, 0.0, -sp]])
         d_rx_t = np.array([[0.0, 0.0, 0.0], [0.0, -sr, cr], [0.0, -cr, -sr]])
         yaw_t = np.array([[c, sn, 0.0], [-sn, c, 0.0], [0.0, 0.0, 1.0]])
         rot = self.optical_from_base
-        G = rot @ rx_t @ ry_t
+        rot_rx = rot @ rx_t
+        G = rot_rx @ ry_t
         # Rows: o, then its derivatives by yaw, roll and pitch, each a map of P.
-        maps = np.vstack([G, G @ _YAW_T, rot @ d_rx_t @ ry_t, rot @ rx_t @ d_ry_t]) @ yaw_t
+        maps = self.maps
+        maps[0:3] = G
+        np.matmul(G, _YAW_T, out=maps[3:6])
+        np.matmul(rot @ d_rx_t, ry_t, out=maps[6:9])
+        np.matmul(rot_rx, d_ry_t, out=maps[9:12])
+        maps = maps @ yaw_t
         along = maps @ v1
         out = along * s
         out += (maps @ (self.c1 - np.array([x, y, dh])) + self.offset)[:, None]
@@ -129,14 +144,15 @@ class _Transfer:
         front = (o[2] > 1e-9) & hit
         iz = np.divide(1.0, o[2], out=np.zeros_like(o[2]), where=front)
         m = o[:2] * iz
-        do = np.empty((_N, 3, len(s)))
+        do = self.do
         d_point = maps[:3]  # d o / d P: x and y move P by minus one, dh lifts it
         do[0] = -d_point[:, 0:1]
         do[1] = -d_point[:, 1:2]
         do[2:5] = out[3:].reshape(3, 3, -1)
         do[5] = -d_point[:, 2:3]
         np.multiply(ds[:, None, :], along[:3], out=do[6:])
-        J = do[:, :2] - do[:, 2:3] * m
+        J = np.multiply(do[:, 2:3], m)
+        np.subtract(do[:, :2], J, out=J)
         J *= iz
         return m - self.m2, J, front
 
