@@ -101,10 +101,10 @@ _KEPT_AT_LEAST = 0.75
 # Wheels roll, they do not slide: base_link (between the rear or drive wheels) moves along a
 # circular arc, the paper's motion model. A refined motion this far off its arc (a share of
 # the step, with a floor for slow steps) is a fit gone astray on a jolt, not the vehicle's:
-# the jolt's fit replaces it when that one keeps to an arc. Over 59 rendered drives the
-# motions' largest slide was 3 % of the step, but for four fits of 6-12 % on bumps (kept: 7 of
-# 148 tracks), one of them a 1.05 deg yaw error at 10 Hz (that drive 0.51 -> 0.46 %, r_rel
-# 1.02 -> 0.29 deg/100 m; a bumps drive 0.20 -> 0.15 %; the 50 drives before within 0.2 %).
+# the jolt's fit replaces it when that one keeps to an arc. Over 50 rendered drives the
+# fits' largest slide was 3 % of the step, but for six of 6-12 % on bumps (one kept 7 of 148
+# tracks; one a 1.05 deg yaw error at 10 Hz). That drive 0.51 -> 0.46 %, r_rel 1.02 -> 0.29
+# deg/100 m; a bumps drive 0.20 -> 0.15 %; the 42 drives of docs/terrain.md 5.04 -> 5.05 in sum.
 _SLIDE_SHARE = 0.05
 _SLIDE_FLOOR = 0.005  # m
 _HALF_TRACK = 1.0  # m either side of base_link whose remembered road the wheels stand on
