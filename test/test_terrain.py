@@ -21,10 +21,10 @@ from planar_vo.core.estimation.local_ground import (
 )
 from planar_vo.core.estimation.ransac import RansacResult, TransferModel
 from planar_vo.core.geometry.camera import CameraModel, Mounting
-from planar_vo.core.geometry.se2 import twist_motion
+from planar_vo.core.geometry.se2 import off_arc, twist_motion
 from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry
-from planar_vo.core.odometry.ground_filter import LocalGroundFilter, off_arc
+from planar_vo.core.odometry.ground_filter import LocalGroundFilter
 from planar_vo.core.odometry.surface_bands import off_surface_bands
 from planar_vo.tools.experiments.mounting_experiment import plain_opencv_path
 from test.conftest import synth_camera_model

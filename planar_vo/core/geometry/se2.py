@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['compose', 'inverse_motion', 'circular_motion', 'twist_motion', 'mean_twist',
-           'power']
+__all__ = ['compose', 'inverse_motion', 'circular_motion', 'off_arc', 'twist_motion',
+           'mean_twist', 'power']
 
 
 def compose(
@@ -38,6 +38,15 @@ def inverse_motion(motion: np.ndarray) -> np.ndarray:
 def circular_motion(yaw: np.ndarray, rho: np.ndarray) -> np.ndarray:
     """Circular motion of the axle: travel ``rho`` along the chord at half the yaw, (..., 3)."""
     return np.stack([rho * np.cos(0.5 * yaw), rho * np.sin(0.5 * yaw), yaw], axis=-1)
+
+
+def off_arc(motion: np.ndarray) -> float:
+    """How far (m) a planar motion (x, y, yaw) ends beside the circular arc of its x and yaw.
+
+    Moving along an arc (:func:`circular_motion`), the axle ends at y = x tan(yaw / 2).
+    """
+    x, y, yaw = motion
+    return abs(float(y - x * np.tan(yaw / 2.0)))
 
 
 def twist_motion(twist: np.ndarray, dt: float) -> np.ndarray:

@@ -27,6 +27,7 @@ from planar_vo.core.estimation.local_ground import (
 )
 from planar_vo.core.estimation.ransac import RansacResult, TransferModel
 from planar_vo.core.geometry.camera import Mounting
+from planar_vo.core.geometry.se2 import off_arc
 from planar_vo.core.odometry.attitude_filter import JOLT_SIGMAS, jolt_threshold
 from planar_vo.core.odometry.bumps_ahead import BumpsAhead
 from planar_vo.core.odometry.road_profile import SAMPLES_AHEAD, RoadProfile
@@ -525,12 +526,3 @@ def _on_all_tracks(fit: LocalGroundResult, shown: np.ndarray, count: int) -> Loc
     weights = np.zeros(count)
     weights[shown] = fit.weights
     return dataclasses.replace(fit, inliers=inliers, weights=weights)
-
-
-def off_arc(motion: np.ndarray) -> float:
-    """How far (m) a planar motion (x, y, yaw) ends beside the circular arc of its x and yaw.
-
-    Moving along an arc, base_link ends at y = x tan(yaw / 2).
-    """
-    x, y, yaw = motion
-    return abs(float(y - x * np.tan(yaw / 2.0)))
