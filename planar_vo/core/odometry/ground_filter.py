@@ -276,12 +276,15 @@ class LocalGroundFilter:
              start_threshold: float) -> tuple[LocalGroundResult, GroundPrior]:
         """The pair refined over the local ground, and the prior it used.
 
-        A fit that slides sideways off its arc gives way to the jolt's fit if that one keeps
-        to an arc (see _SLIDE_SHARE).
+        Once more through a jolt if it is lost. A fit that slides sideways off its arc gives
+        way to the jolt's fit if that one keeps to an arc (see _SLIDE_SHARE).
         """
         args = (motion, v1, m2, camera, prior, focal_px)
         options = dict(dt=dt, inlier_threshold=inlier_threshold, start_threshold=start_threshold)
-        fit, used = self._fit_smooth(*args, **options)
+        try:
+            fit, used = self._fit_smooth(*args, **options)
+        except PoseEstimationError:
+            return self._fit_jolt(*args, **options)
         bound = max(_SLIDE_SHARE * float(np.hypot(motion[0], motion[1])), _SLIDE_FLOOR)
         if off_arc(fit.motion) <= bound:
             return fit, used
@@ -296,32 +299,27 @@ class LocalGroundFilter:
                     start_threshold: float) -> tuple[LocalGroundResult, GroundPrior]:
         """The pair refined with the body's learned rate as the rotation's prior.
 
-        Once more through a jolt if it is lost, or with the height change's upper bound if a
-        wheel lifted.
+        Once more with the height change's upper bound if a wheel lifted. Raises
+        PoseEstimationError when it is lost.
         """
-        try:
-            fit = refine_on_local_ground(
-                motion, v1, m2, camera, prior, focal_px=focal_px,
-                threshold_px=inlier_threshold, start_threshold_px=start_threshold,
-                hinge=self.hinge, cauchy=_CAUCHY,
-                hinge_height=-self.bumps.front_height)
-            travel = float(np.hypot(motion[0], motion[1]))
-            if self._wheel_lift(fit.rotation, dt, travel) <= _IRREGULAR_LIFT:
-                return fit, prior
-            # A rear wheel climbing a bump lifts base_link 5-8 cm within a frame, far past
-            # the height's rate learned on the road before: that prior held the lift to 80 %
-            # and the step took the rest (+10-24 mm a bump on a rendered 8 cm bump).
-            rates2 = np.r_[self.rate2[:2], self.rates[2] ** 2]
-            lifted = GroundPrior(np.diag(rates2 * dt * dt), prior.surface, prior.surface_cov)
-            return refine_on_local_ground(
-                motion, v1, m2, camera, lifted, focal_px=focal_px,
-                threshold_px=inlier_threshold, start_threshold_px=start_threshold,
-                hinge=self.hinge, cauchy=_CAUCHY,
-                hinge_height=-self.bumps.front_height), lifted
-        except PoseEstimationError:
-            return self._fit_jolt(motion, v1, m2, camera, prior, focal_px, dt=dt,
-                                  inlier_threshold=inlier_threshold,
-                                  start_threshold=start_threshold)
+        fit = refine_on_local_ground(
+            motion, v1, m2, camera, prior, focal_px=focal_px,
+            threshold_px=inlier_threshold, start_threshold_px=start_threshold,
+            hinge=self.hinge, cauchy=_CAUCHY,
+            hinge_height=-self.bumps.front_height)
+        travel = float(np.hypot(motion[0], motion[1]))
+        if self._wheel_lift(fit.rotation, dt, travel) <= _IRREGULAR_LIFT:
+            return fit, prior
+        # A rear wheel climbing a bump lifts base_link 5-8 cm within a frame, far past
+        # the height's rate learned on the road before: that prior held the lift to 80 %
+        # and the step took the rest (+10-24 mm a bump on a rendered 8 cm bump).
+        rates2 = np.r_[self.rate2[:2], self.rates[2] ** 2]
+        lifted = GroundPrior(np.diag(rates2 * dt * dt), prior.surface, prior.surface_cov)
+        return refine_on_local_ground(
+            motion, v1, m2, camera, lifted, focal_px=focal_px,
+            threshold_px=inlier_threshold, start_threshold_px=start_threshold,
+            hinge=self.hinge, cauchy=_CAUCHY,
+            hinge_height=-self.bumps.front_height), lifted
 
     def _fit_jolt(self, motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
                   prior: GroundPrior, focal_px: float, *, dt: float, inlier_threshold: float,
