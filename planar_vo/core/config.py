@@ -141,6 +141,11 @@ SCHEMA: tuple[Param, ...] = (
           'or 0 when its drive wheels lead and the caster trails), m. The road ahead is free '
           'to bend from there.',
           0.0, 20.0),
+    Param('surface_half_width', 1.4, 'With ground_model local: how far to either side of '
+          'base_link the road is surely one smooth surface, m. While the road beyond it on a '
+          'side bends away (a crowned road at its crown, 1.5-2 m left of a car in its lane), '
+          'the tracks beyond it are left out of the surface\'s fit. 100: every track, always.',
+          0.3, 100.0),
     Param('estimate_attitude', False, "With ground_model plane: estimate the camera's pitch, "
           'roll and height change to the ground plane every frame, jointly with the motion (a '
           'sprung body on flat ground; a mounting known to about a degree). Off: the mounting '

@@ -38,7 +38,9 @@ from planar_vo.core.odometry.surface_bands import (
     faster_bands,
     off_surface_bands,
     refit_consistent,
+    side_offsets,
     wheel_plane_distance,
+    wheel_plane_lateral,
 )
 
 __all__ = ['LocalGroundFilter']
@@ -108,6 +110,13 @@ _KEPT_AT_LEAST = 0.75
 # deg/100 m; a bumps drive 0.20 -> 0.15 %; the 42 drives of docs/terrain.md 5.04 -> 5.05 in sum.
 _SLIDE_SHARE = 0.05
 _SLIDE_FLOOR = 0.005  # m
+# The road beyond surface_half_width on a side is left out of the fit while its tracks are
+# off the surface, along their flow, by over _SIDE_SIGMAS standard errors in the mean over
+# _SIDE_MEMORY_M of travel (a crowned road: the far side of the crown falls away; fitted, it
+# turned a car 3-5 mdeg a metre). Rendered drives, a pair's figure: flat, grades and a
+# mounting 1 deg off within +-2 (10th-90th percentile); beyond a crown 1.75 m left +0.2 to +6.
+_SIDE_SIGMAS = 2.0
+_SIDE_MEMORY_M = 5.0
 _HALF_TRACK = 1.0  # m either side of base_link whose remembered road the wheels stand on
 
 
@@ -119,20 +128,22 @@ class LocalGroundFilter:
     """
 
     def __init__(self, mounting: Mounting, *, rates: np.ndarray, hinge: float,
-                 self_calibrate: bool) -> None:
+                 self_calibrate: bool, half_width: float = np.inf) -> None:
         self.rates = np.asarray(rates, dtype=float)  # upper bounds: roll, pitch, height rates
         self.hinge = hinge
+        self.half_width = half_width  # m either side of base_link: the surface's tracks
         self.self_calibrate = self_calibrate
         self.calibrator = MountingCalibrator(mounting)
         self.reset()
 
     @classmethod
     def from_params(cls, mounting: Mounting, params: Any) -> LocalGroundFilter:
-        """From the attitude_rate, bounce_rate, wheelbase and self_calibrate parameters."""
+        """From the parameters (rates, wheelbase, self_calibrate, surface_half_width)."""
         rates = np.array([params['attitude_rate'], params['attitude_rate'],
                           params['bounce_rate']])
         return cls(mounting, rates=rates, hinge=params['wheelbase'],
-                   self_calibrate=params['self_calibrate'])
+                   self_calibrate=params['self_calibrate'],
+                   half_width=params['surface_half_width'])
 
     def reset(self) -> None:
         """Nothing seen yet: a flat road is only the prior's best guess."""
@@ -143,6 +154,7 @@ class LocalGroundFilter:
         self.irregular = False
         self.rough_ahead = np.zeros(len(SAMPLES_AHEAD), bool)  # the last pair's, per sample
         self.used_reach = np.inf  # m from the camera: the last pair's tracks (within_reach)
+        self.side_drift = np.zeros(2)  # the road beyond the lane, left and right (_SIDE_SIGMAS)
         self.restart()
 
     def restart(self) -> None:
@@ -225,10 +237,18 @@ class LocalGroundFilter:
                             self.surface_cov + np.diag(step ** 2))
         v1 = rays1 @ camera.base_from_optical.T
         distance = wheel_plane_distance(camera, v1)
-        # The tracks on a bump remembered ahead are left out (unless too few would be left).
-        hidden = self.bumps.hides(distance, BAND_REACH)
+        # The tracks beyond a side of the lane whose road bends away, and those on a bump
+        # remembered ahead, are left out, each unless too few would be left.
+        lateral = wheel_plane_lateral(camera, v1)
+        away = np.abs(self.side_drift) > _SIDE_SIGMAS
+        hidden = away.any() & (np.abs(lateral) > self.half_width)
         if np.count_nonzero(~hidden) < 2 * min_inliers:
             hidden[:] = False
+        beyond = hidden.copy()
+        on_bumps = self.bumps.hides(distance, BAND_REACH) & ~hidden
+        hides_bumps = np.count_nonzero(~(hidden | on_bumps)) >= 2 * min_inliers
+        if hides_bumps:
+            hidden |= on_bumps
         shown = np.flatnonzero(~hidden)
         fit, prior = self._fit(est.motion, v1[shown], m2[shown], camera, prior,
                                model.focal_px, dt=dt, inlier_threshold=inlier_threshold,
@@ -242,6 +262,14 @@ class LocalGroundFilter:
             raise PoseEstimationError(f'{count} inliers, fewer than {min_inliers}')
         if hidden.any():
             fit = _on_all_tracks(fit, shown, len(v1))
+        if travel > 0.0:
+            sides = side_offsets(fit, v1, m2, camera, self.hinge, model.focal_px,
+                                 half_width=self.half_width, left_out=beyond,
+                                 threshold_px=inlier_threshold,
+                                 hinge_height=-self.bumps.front_height)
+            self.side_drift = self.side_drift + min(travel / _SIDE_MEMORY_M, 1.0) * (
+                sides - self.side_drift)
+        if hides_bumps and on_bumps.any():
             rough = rough | self._samples_near(np.array(self.bumps.ahead))
         lifted = self._wheel_lift(fit.rotation, dt, travel)
         self.bumps = self._bumps_after(fit, prior, lifted, rays1, v1, m2, camera, distance)
@@ -514,6 +542,9 @@ class LocalGroundFilter:
                 'all' if np.isinf(self.used_reach) else f'{self.used_reach:.1f}'),
             'ground ahead irregular': str(self.irregular),
             'bumps ahead (m)': ', '.join(f'{x:.1f}' for x in self.bumps.ahead) or 'none',
+            'road bends away beyond the lane': ', '.join(
+                side for side, drift in zip(('left', 'right'), self.side_drift)
+                if abs(drift) > _SIDE_SIGMAS) or 'neither side',
         }
 
 

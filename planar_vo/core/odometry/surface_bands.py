@@ -13,8 +13,8 @@ import numpy as np
 from planar_vo.core.estimation.local_ground import LocalGroundResult, surface_residuals
 from planar_vo.core.geometry.camera import Mounting
 
-__all__ = ['BAND_M', 'BAND_REACH', 'faster_bands', 'off_surface_bands', 'refit_consistent',
-           'wheel_plane_distance']
+__all__ = ['BAND_M', 'BAND_REACH', 'along_flow', 'faster_bands', 'off_surface_bands',
+           'refit_consistent', 'side_offsets', 'wheel_plane_distance', 'wheel_plane_lateral']
 
 # Bands of the ground off the smooth surface together (a speed bump ahead): left out and the
 # pair refined again (off_surface_bands). Measured on three rendered bumps drives (752x480,
@@ -58,6 +58,55 @@ def wheel_plane_distance(camera: Mounting, v1: np.ndarray) -> np.ndarray:
     return c[0] + c[2] / np.maximum(-v1[:, 2], 1e-9) * v1[:, 0]
 
 
+def wheel_plane_lateral(camera: Mounting, v1: np.ndarray) -> np.ndarray:
+    """Y (m, base_link, left positive) where each ray (N, 3) meets the wheel plane."""
+    c = camera.position
+    return c[1] + c[2] / np.maximum(-v1[:, 2], 1e-9) * v1[:, 1]
+
+
+def along_flow(fit: LocalGroundResult, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
+               hinge: float, focal_px: float,
+               hinge_height: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Each track's transfer residual under ``fit`` along its flow, and its whole one, px.
+
+    The flow is the transfer's derivative in x. Both (N,).
+
+    A track on ground off the smooth surface is off along its flow (it moves as a nearer or
+    further point would); a merely noisy one is off in any direction.
+    """
+    params = np.concatenate([fit.motion, fit.rotation, fit.surface])
+    r, J, _ = surface_residuals(params, np.ascontiguousarray(v1.T),
+                                np.ascontiguousarray(m2.T), camera, hinge, hinge_height)
+    flow = J[0] / np.maximum(np.linalg.norm(J[0], axis=0), 1e-12)
+    return focal_px * (r * flow).sum(axis=0), focal_px * np.linalg.norm(r, axis=0)
+
+
+def side_offsets(fit: LocalGroundResult, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
+                 hinge: float, focal_px: float, *, half_width: float, left_out: np.ndarray,
+                 threshold_px: float, hinge_height: float = 0.0) -> np.ndarray:
+    """How far the road beyond ``half_width`` on the left and on the right is off the surface.
+
+    (2,): the mean of its tracks' residuals under ``fit`` along their flow, in standard
+    errors; 0 where fewer than _BAND_MIN_TRACKS tracks count.
+
+    A crowned road falls away beyond its crown, 1.5-2 m left of a car in its lane: there
+    the tracks move as points below the surface do. The tracks that count are ``fit``'s
+    inliers and those ``left_out`` (N,) of it for their side, within ``threshold_px``; not
+    those on a bump or a band off the surface, which are off on both sides.
+    """
+    along, whole = along_flow(fit, v1, m2, camera, hinge, focal_px, hinge_height)
+    sigma = max(float(np.sqrt(np.mean(along[fit.inliers] ** 2))), _MIN_SIGMA_PX)
+    lateral = wheel_plane_lateral(camera, v1)
+    counted = fit.inliers | (left_out & (whole < threshold_px))
+    out = np.zeros(2)
+    for i, side in enumerate((lateral > half_width, lateral < -half_width)):
+        members = counted & side
+        n = int(np.count_nonzero(members))
+        if n >= _BAND_MIN_TRACKS:
+            out[i] = float(np.mean(along[members])) / sigma * np.sqrt(n)
+    return out
+
+
 def off_surface_bands(fit: LocalGroundResult, v1: np.ndarray, m2: np.ndarray,
                       camera: Mounting, hinge: float, focal_px: float,
                       hinge_height: float = 0.0) -> np.ndarray | None:
@@ -71,11 +120,7 @@ def off_surface_bands(fit: LocalGroundResult, v1: np.ndarray, m2: np.ndarray,
     the flow is _BAND_SIGMAS standard errors and _BAND_OFFSET of one track's noise from
     none goes. The distance is the ray's on the wheel plane (close enough to bin).
     """
-    params = np.concatenate([fit.motion, fit.rotation, fit.surface])
-    r, J, _ = surface_residuals(params, np.ascontiguousarray(v1.T),
-                                np.ascontiguousarray(m2.T), camera, hinge, hinge_height)
-    flow = J[0] / np.maximum(np.linalg.norm(J[0], axis=0), 1e-12)
-    along = focal_px * (r * flow).sum(axis=0)
+    along, _ = along_flow(fit, v1, m2, camera, hinge, focal_px, hinge_height)
     distance = wheel_plane_distance(camera, v1)
     inliers = fit.inliers
     sigma = max(float(np.sqrt(np.mean(along[inliers] ** 2))), _MIN_SIGMA_PX)
