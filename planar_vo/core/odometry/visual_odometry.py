@@ -503,7 +503,11 @@ class VisualOdometry:
                      hypotheses=est.hypotheses, rms_px=est.rms_px, pose_ms=pose_ms)
         start, step = self._ref_stamp, est.motion
         if self.standstill.stationary:
-            if not self.standstill.moved(planar.motion, planar.covariance):
+            # Moving again when the rigid planar motion since the reference says so, or the
+            # local ground's: on uneven ground a car stopping on a bump's slope fits no rigid
+            # motion well, and the rigid test held a stop until 116 mm had passed.
+            if not (self.standstill.moved(planar.motion, planar.covariance) or (
+                    est is not planar and self.standstill.moved(est.motion, est.covariance))):
                 return self._hold_still(stamp, t0, previous, est, stats)
             # Pulling away. The motion since the reference at the last frame found still
             # (below the test, usually nothing) is composed first, then the last interval's:
