@@ -1,9 +1,11 @@
-"""Bands of the ground off the smooth surface: a speed bump a few metres ahead.
+"""Ground off the smooth surface: a speed bump a few metres ahead, the far side of a crown.
 
 A bump is a band across the road whose tracks are all off the local ground's smooth surface
 (:mod:`planar_vo.core.estimation.local_ground`) the same way, along their flow; the surface
 cannot follow it, so its tracks bias the pair. The local ground filter leaves such bands out
-and refines the pair again. Numpy only; no ROS.
+and refines the pair again. The road beyond a crown is a side of the image off the surface
+the same way (:func:`side_offsets`); the filter leaves it out of the next pairs. Numpy only;
+no ROS.
 """
 
 from __future__ import annotations
