@@ -237,18 +237,8 @@ class LocalGroundFilter:
                             self.surface_cov + np.diag(step ** 2))
         v1 = rays1 @ camera.base_from_optical.T
         distance = wheel_plane_distance(camera, v1)
-        # The tracks beyond a side of the lane whose road bends away, and those on a bump
-        # remembered ahead, are left out, each unless too few would be left.
-        lateral = wheel_plane_lateral(camera, v1)
-        away = np.abs(self.side_drift) > _SIDE_SIGMAS
-        hidden = away.any() & (np.abs(lateral) > self.half_width)
-        if np.count_nonzero(~hidden) < 2 * min_inliers:
-            hidden[:] = False
-        beyond = hidden.copy()
-        on_bumps = self.bumps.hides(distance, BAND_REACH) & ~hidden
-        hides_bumps = np.count_nonzero(~(hidden | on_bumps)) >= 2 * min_inliers
-        if hides_bumps:
-            hidden |= on_bumps
+        beyond, on_bumps = self._left_out(camera, v1, distance, 2 * min_inliers)
+        hidden = beyond | on_bumps
         shown = np.flatnonzero(~hidden)
         fit, prior = self._fit(est.motion, v1[shown], m2[shown], camera, prior,
                                model.focal_px, dt=dt, inlier_threshold=inlier_threshold,
@@ -269,7 +259,7 @@ class LocalGroundFilter:
                                  hinge_height=-self.bumps.front_height)
             self.side_drift = self.side_drift + min(travel / _SIDE_MEMORY_M, 1.0) * (
                 sides - self.side_drift)
-        if hides_bumps and on_bumps.any():
+        if on_bumps.any():
             rough = rough | self._samples_near(np.array(self.bumps.ahead))
         lifted = self._wheel_lift(fit.rotation, dt, travel)
         self.bumps = self._bumps_after(fit, prior, lifted, rays1, v1, m2, camera, distance)
@@ -298,6 +288,22 @@ class LocalGroundFilter:
             motion_cov = motion_cov + applied
         return RansacResult(fit.motion, motion_cov, fit.inliers, est.hypotheses,
                             fit.rms_px), calibrated
+
+    def _left_out(self, camera: Mounting, v1: np.ndarray, distance: np.ndarray,
+                  keep: int) -> tuple[np.ndarray, np.ndarray]:
+        """Which tracks (N,) bool the pair's fit leaves out: beyond the lane, on a bump.
+
+        Beyond ``half_width`` while the road bends away on a side (a crown), then on a bump
+        remembered ahead; each only if ``keep`` tracks are left.
+        """
+        away = np.abs(self.side_drift) > _SIDE_SIGMAS
+        beyond = away.any() & (np.abs(wheel_plane_lateral(camera, v1)) > self.half_width)
+        if np.count_nonzero(~beyond) < keep:
+            beyond[:] = False
+        on_bumps = self.bumps.hides(distance, BAND_REACH) & ~beyond
+        if np.count_nonzero(~(beyond | on_bumps)) < keep:
+            on_bumps[:] = False
+        return beyond, on_bumps
 
     def _fit(self, motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
              prior: GroundPrior, focal_px: float, *, dt: float, inlier_threshold: float,
