@@ -157,6 +157,19 @@ class _Transfer:
         return m - self.m2, J, front
 
 
+def _arc_terms(params: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Information (11, 11) and gradient (11,) that hold base_link to its circular arc.
+
+    Within ``sigma`` m: the constraint ``y = x tan(yaw / 2)`` (:func:`~planar_vo.core.
+    geometry.se2.off_arc`), linearized at ``params``.
+    """
+    x, y, yaw = params[:3]
+    half = math.tan(yaw / 2.0)
+    jac = np.zeros(_N)
+    jac[:3] = (-half, 1.0, -x * (1.0 + half * half) / 2.0)
+    return np.outer(jac, jac) / sigma ** 2, jac * (y - x * half) / sigma ** 2
+
+
 def ray_coefficients(origin: np.ndarray, directions: np.ndarray,
                      hinge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where the rays ``origin + s directions`` ((3,), (3, N)) meet the surface.
@@ -193,7 +206,7 @@ def refine_on_local_ground(
     motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, mounting: Mounting,
     prior: GroundPrior, *, focal_px: float, threshold_px: float, hinge: float,
     start_threshold_px: float | None = None, cauchy: float = 1.0, iterations: int = 8,
-    hinge_height: float = 0.0,
+    hinge_height: float = 0.0, arc_sigma: float | None = None,
 ) -> LocalGroundResult:
     """Gauss-Newton over (motion, frame-2 rotation, surface) with priors and Cauchy weights.
 
@@ -220,6 +233,7 @@ def refine_on_local_ground(
     wide = max(threshold_px, start_threshold_px or threshold_px)
     iterations += int(np.ceil(np.log2(wide / threshold_px)))
     inliers = np.zeros(len(v1), bool)
+    arc_info = np.zeros((_N, _N))
     transfer = _Transfer(v1_t, m2_t, mounting, hinge, hinge_height)
     for i in range(iterations + 1):
         threshold = max(threshold_px, wide * 0.5 ** i)
@@ -236,6 +250,10 @@ def refine_on_local_ground(
         J_w = (J * weights).reshape(_N, -1)
         H = J_w @ J.reshape(_N, -1).T / sigma2 + info
         g = J_w @ r.reshape(-1) / sigma2 + info @ (params - mean)
+        if arc_sigma is not None:
+            arc_info, arc_gradient = _arc_terms(params, arc_sigma)
+            H = H + arc_info
+            g = g + arc_gradient
         if i == iterations:
             break
         step = -np.linalg.solve(H, g)
@@ -246,7 +264,7 @@ def refine_on_local_ground(
     # information the data give, and lower the noise that reaches the estimate as much.
     bread = np.linalg.inv(H)
     J_ww = (J * weights * weights).reshape(_N, -1)
-    covariance = bread @ (J_ww @ J.reshape(_N, -1).T / sigma2 + info) @ bread
+    covariance = bread @ (J_ww @ J.reshape(_N, -1).T / sigma2 + info + arc_info) @ bread
     rms = focal_px * float(np.sqrt(squared[inliers].mean()))
     # The rotation's prior (the body's rate) pulls every rotation towards none: summed over a
     # second of a hill it comes up short by 5-20 %. One Newton step without it undoes that.
