@@ -320,18 +320,26 @@ class LocalGroundFilter:
         """The pair refined over the local ground, and the prior it used.
 
         Once more through a jolt if it is lost. A fit that slides sideways off its arc gives
-        way to the jolt's fit if that one keeps to an arc, else to itself held to its arc
-        (see _SLIDE_SHARE).
+        way to the jolt's fit if that one keeps to an arc; if that one slides through a jolt,
+        to the fit held to its arc (see _SLIDE_SHARE).
         """
         args = (motion, v1, m2, camera, prior, focal_px)
         options = dict(dt=dt, inlier_threshold=inlier_threshold, start_threshold=start_threshold)
-        bound = max(_SLIDE_SHARE * float(np.hypot(motion[0], motion[1])), _SLIDE_FLOOR)
+        travel = float(np.hypot(motion[0], motion[1]))
+        bound = max(_SLIDE_SHARE * travel, _SLIDE_FLOOR)
         held = dict(options, arc_sigma=_HELD_SHARE * bound)
+
+        def astray(jolted: LocalGroundResult) -> bool:
+            # Sliding through a jolt: a vehicle that really moves sideways (mecanum wheels)
+            # keeps its own fit on smooth ground.
+            return (off_arc(jolted.motion) > bound
+                    and self._wheel_lift(jolted.rotation, dt, travel) > _IRREGULAR_LIFT)
+
         try:
             fit, used = self._fit_smooth(*args, **options)
         except PoseEstimationError:
             jolted = self._fit_jolt(*args, **options)
-            if off_arc(jolted[0].motion) <= bound:
+            if not astray(jolted[0]):
                 return jolted
             try:
                 return self._fit_jolt(*args, **held)
@@ -345,6 +353,8 @@ class LocalGroundFilter:
             return fit, used
         if off_arc(jolted[0].motion) <= bound:
             return jolted
+        if not astray(jolted[0]):
+            return fit, used
         try:
             return self._fit_smooth(*args, **held)
         except PoseEstimationError:
