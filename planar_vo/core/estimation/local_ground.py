@@ -218,6 +218,8 @@ def refine_on_local_ground(
         motion: (3,) starting motion (RANSAC's).
         v1: (N, 3) frame-1 ray directions in base_link.
         m2: (N, 2) observed frame-2 normalized coordinates.
+        arc_sigma: if given, base_link is held to the circular arc of its x and yaw within
+            this many metres (a prior: wheels roll, they do not slide); None: free.
 
     Raises:
         PoseEstimationError: fewer than 3 correspondences fit.

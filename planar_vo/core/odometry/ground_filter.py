@@ -108,10 +108,11 @@ _KEPT_AT_LEAST = 0.75
 # fits' largest slide was 3 % of the step, but for six of 6-12 % on bumps (one kept 7 of 148
 # tracks; one a 1.05 deg yaw error at 10 Hz). That drive 0.51 -> 0.46 %, r_rel 1.02 -> 0.29
 # deg/100 m; a bumps drive 0.20 -> 0.15 %; the 42 drives of docs/terrain.md 5.04 -> 5.05 in sum.
-# When the jolt's fit slides too, the pair is refined again held to its arc within
-# _HELD_SHARE of the bound: the paper's circular motion, where the tracks cannot tell a
-# sideways slide from a roll and a turn (45 of 233 tracks left as a wheel climbed a bump
-# crossed at 23 deg: three frames 0.2-0.29 deg of yaw off, that drive 0.378 -> 0.159 %).
+# When the jolt's fit slides too, through a jolt (a wheel lifted), the pair is refined again
+# held to its arc within _HELD_SHARE of the bound: the paper's circular motion, where the
+# tracks cannot tell a sideways slide from a roll and a turn (45 of 233 tracks left as a
+# wheel climbed a bump crossed at 23 deg: three frames 0.2-0.29 deg of yaw off, that drive
+# 0.378 -> 0.158 %).
 # Stop 34, 24 rendered drives: a share of 0.05 -> 0.03 took another of them 0.253 -> 0.216 %
 # (0.02: 3.93 in sum against 3.92; the held fit within 0.3 or 0.03 of the bound: 3.93).
 # Held always, within 1 or 2 % of the step: 3.95-3.98 in sum, and the sideways slip that
