@@ -116,6 +116,7 @@ class LiveSession:
         self.info_pub = self.node.create_publisher(CameraInfo, '/camera/camera_info', reliable)
         self.received: dict[float, tuple[float, bytes]] = {}  # stamp → (receive time, CDR)
         self.sent: dict[float, float] = {}  # stamp → send time
+        self._newest = -np.inf  # the latest stamp whose odometry came
         self._lock = threading.Lock()
         from nav_msgs.msg import Odometry
         self.node.create_subscription(Odometry, '/odom', self._on_odom, 100, raw=True)
@@ -127,7 +128,9 @@ class LiveSession:
     def _on_odom(self, cdr: bytes) -> None:
         now = time.perf_counter()
         with self._lock:
-            self.received.setdefault(_cdr_stamp(cdr), (now, cdr))
+            stamp = _cdr_stamp(cdr)
+            self.received.setdefault(stamp, (now, cdr))
+            self._newest = max(self._newest, stamp)
 
     def odometry(self, stamp: float) -> Any:
         """The nav_msgs/Odometry received for ``stamp``."""
@@ -181,16 +184,41 @@ class LiveSession:
         return False
 
     def play(self, frames: list[tuple[float, bytes, bytes]], rate: float | None = None,
-             settle: float = 2.0) -> None:
-        """Publish frames at their own stamps' pace (``rate=None``) or at ``rate`` Hz."""
+             settle: float = 2.0, window: int | None = None) -> float:
+        """Publish frames at their own stamps' pace (``rate=None``) or at ``rate`` Hz.
+
+        ``window``: never more than this many frames ahead of the odometry that came back
+        (each waited for up to ``settle`` s): on a loaded machine the player slows down
+        instead of the node dropping the frames it cannot keep up with, so what is compared
+        does not depend on the machine's load. None: the pace alone (what the node keeps up
+        with is then the measurement). Returns the seconds the playback took.
+        """
         start = time.perf_counter()
         first = frames[0][0]
         for i, frame in enumerate(frames):
+            if window is not None and i >= window:
+                self.wait_for_any(frames[i - window][0], settle)
             due = start + ((frame[0] - first) if rate is None else i / rate)
             while time.perf_counter() < due:
                 time.sleep(min(0.001, max(due - time.perf_counter(), 0)))
             self.send(frame)
         self.wait_for(frames[-1][0], settle)
+        return time.perf_counter() - start
+
+    def wait_for_any(self, stamp: float, timeout: float) -> bool:
+        """True once odom for ``stamp`` or a later one has arrived.
+
+        The node answers in order: a later answer means ``stamp`` will not come. LiveError
+        if the node has died.
+        """
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            with self._lock:
+                if stamp in self.received or self._newest > stamp:
+                    return True
+            self._check_alive()
+            time.sleep(0.002)
+        return False
 
     def reset(self, timeout: float = 10.0) -> None:
         """Call ~/reset and forget what was sent and received."""
@@ -207,6 +235,7 @@ class LiveSession:
         with self._lock:
             self.received.clear()
             self.sent.clear()
+            self._newest = -np.inf
 
     def latencies_ms(self, stamps: list[float]) -> np.ndarray:
         """Send → odom-received time of each stamp that came back, ms."""
