@@ -39,10 +39,11 @@ PROG = 'planar_vo_demo'
 # Frames the player may be ahead of the odometry that came back: on a loaded machine the
 # playback slows down instead of the node dropping frames it cannot keep up with (its answer
 # then still matches the offline replay's); whether it keeps the rate is planar_vo_bench's.
-# One: with two, a frame that waited while a slow one (the first pair's ground search under
-# load) was processed was dropped as stale when the next came (1 of 90, 1 run in 5 with
-# three busy processes on the 2 cores).
+# One: with three, a frame that waited while a slow one (the first pair's ground search
+# under load) was processed was dropped as stale when the next came (1 of 90, in 1 run of 5
+# with three busy processes on the 2 cores; none in 6 with one); two leave the same race.
 PLAY_WINDOW = 1
+
 
 def run_demo(bag: Path, params_file: Path, *, plot: Path | None = None,
              log: Path | None = None) -> dict[str, Any]:
