@@ -51,6 +51,26 @@ def test_node_at_real_rate_matches_replay_and_ground_truth(dds_env, default_repl
     assert len(latency) == frames - 1 and np.all(latency > 0)
 
 
+def test_the_demo_s_player_waits_for_each_answer_so_no_frame_is_dropped(dds_env):
+    """Sent far faster than the node can answer (1 kHz), the demo's player still sends each
+    frame only after the one before came back, and every frame is answered. Without the
+    window the node drops the frames that waited (its answer to a busy machine)."""
+    stream = BagStream.read(DEFAULT_BAG, limit=30)
+    session = LiveSession(CONFIG, image_type=stream.image_type)
+    try:
+        session.wait_connected()
+        session.handshake(stream.frames[0])
+        session.play(stream.frames[1:], rate=1000.0, settle=60.0, window=PLAY_WINDOW)
+    finally:
+        status = session.close()
+    assert status == 0
+    stamps = [f[0] for f in stream.frames]
+    assert all(s in session.received for s in stamps)
+    answered = np.array([session.received[s][0] for s in stamps[:-1]])
+    sent = np.array([session.sent[s] for s in stamps[1:]])
+    assert np.all(answered <= sent), np.flatnonzero(answered > sent)
+
+
 def test_a_node_that_dies_is_reported_at_once(dds_env):
     """The node killed after discovery: the next wait raises LiveError with its exit status
     instead of waiting out its timeout (a bench once waited over 10 minutes on a dead node)."""
