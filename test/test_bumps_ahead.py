@@ -6,7 +6,7 @@ test_terrain._observe, independently of the code under test).
 
 import numpy as np
 
-from planar_vo.core.estimation.local_ground import GroundPrior, refine_on_local_ground
+from planar_vo.core.estimation.local_ground import GroundPrior, Hinge, refine_on_local_ground
 from planar_vo.core.estimation.ransac import RansacResult, TransferModel
 from planar_vo.core.odometry.bumps_ahead import BumpsAhead
 from planar_vo.core.odometry.ground_filter import LocalGroundFilter
@@ -36,7 +36,7 @@ def test_a_bump_s_band_moves_faster_than_the_road_around_it_and_a_hill_s_does_no
     points = _road(rng, lambda x, y: np.where((x > 5.0) & (x < 5.5), 0.08, 0.0))
     on_bump = points[:, 2] > 0
     v1, m1, m2 = _view(points)
-    found = faster_bands(STEP, np.zeros(3), np.zeros(5), v1, m1, m2, MOUNT, HINGE)
+    found = faster_bands(STEP, np.zeros(3), np.zeros(5), v1, m1, m2, MOUNT, Hinge(HINGE))
     assert found.any() and np.mean(on_bump[found]) > 0.8
     distance = wheel_plane_distance(MOUNT, v1)
     hidden = BumpsAhead().seen(distance[found], 0.5).hides(distance, 0.75)
@@ -45,7 +45,8 @@ def test_a_bump_s_band_moves_faster_than_the_road_around_it_and_a_hill_s_does_no
     hill = np.array([0.0, 0.0, 0.03, 0.0, 0.0])
     for surface in (np.zeros(5), hill):
         v1, m1, m2 = _view(_road(rng, lambda x, y, k=surface[2]: 0.5 * k * (x - HINGE) ** 2))
-        assert not faster_bands(STEP, np.zeros(3), surface, v1, m1, m2, MOUNT, HINGE).any()
+        assert not faster_bands(STEP, np.zeros(3), surface, v1, m1, m2, MOUNT,
+                                Hinge(HINGE)).any()
 
 
 def test_the_front_wheels_on_a_bump_need_the_road_s_height_at_the_hinge():
@@ -61,9 +62,9 @@ def test_the_front_wheels_on_a_bump_need_the_road_s_height_at_the_hinge():
 
     def step(hinge_height):
         return refine_on_local_ground(STEP + [0.01, 0.0, 0.0], v1, m2, MOUNT, prior,
-                                      focal_px=500.0, threshold_px=2.0, hinge=HINGE,
+                                      focal_px=500.0, threshold_px=2.0,
                                       start_threshold_px=20.0, iterations=20,
-                                      hinge_height=hinge_height).motion
+                                      hinge=Hinge(HINGE, height=hinge_height)).motion
 
     np.testing.assert_allclose(step(-lift), STEP, atol=1e-5)
     assert abs(step(0.0)[0] - STEP[0]) > 0.005

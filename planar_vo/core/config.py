@@ -141,6 +141,12 @@ SCHEMA: tuple[Param, ...] = (
           'or 0 when its drive wheels lead and the caster trails), m. The road ahead is free '
           'to bend from there.',
           0.0, 20.0),
+    Param('track_width', 1.6, 'With ground_model local: how far apart the wheels at wheelbase '
+          'stand, centre to centre of their contact patches, m (a car\'s front track; a '
+          'differential-drive robot with wheelbase 0: its drive wheels; a front caster: 0). '
+          'The road ahead meets the wheels there, not under the centre line, which a crowned '
+          'road or a hill crossed at an angle holds lower or higher.',
+          0.0, 5.0),
     Param('surface_half_width', 1.4, 'With ground_model local: how far to either side of '
           'base_link the road is surely one smooth surface, m. While the road beyond it on a '
           'side bends away (a crowned road at its crown, 1.5-2 m left of a car in its lane), '

@@ -204,7 +204,9 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
             bar.update()
     if params_out is not None:
         # The wheels are measured with the mounting: where the road may bend from.
-        text = params_yaml(configured) + f'    wheelbase: {CHASSIS[vehicle].front_x!r}\n'
+        chassis = CHASSIS[vehicle]
+        text = (params_yaml(configured) + f'    wheelbase: {chassis.front_x!r}\n'
+                f'    track_width: {chassis.front_track!r}\n')
         if configured != mounting:
             text += (f'# rendered with camera_x {mounting.x!r}, camera_y {mounting.y!r}, '
                      f'camera_height {mounting.height!r},\n# camera_roll {mounting.roll!r}, '

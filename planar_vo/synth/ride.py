@@ -93,6 +93,12 @@ class Chassis:
         return float(np.mean([p[0] for p in self.front]))
 
     @property
+    def front_track(self) -> float:
+        """How far apart the front contacts stand (m): the ``track_width`` param."""
+        ys = [p[1] for p in self.front]
+        return float(max(ys) - min(ys))
+
+    @property
     def length(self) -> float:
         """Distance between the front and the rear contacts' centres (m)."""
         return float(np.mean([p[0] for p in self.front]) - np.mean([p[0] for p in self.rear]))

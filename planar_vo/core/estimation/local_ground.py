@@ -17,6 +17,8 @@ through the wheel contacts):
 - the road ahead as a quadratic surface hinged at the front axle, ``z = ep u + er y +
   k u^2 / 2 + kxy u y + kyy y^2 / 2`` with ``u = x - hinge``: its grade (ep) and cross-slope
   (er) relative to the wheels, its curvature along (k) and across (kyy) and its twist (kxy).
+  The wheels at the hinge stand on it: where the road sags or rises between them (a crown,
+  a hill crossed at an angle), the centre line lies ``kyy track^2 / 8`` off the wheel plane.
 
 Each track's ray from camera 1 meets the surface; the point is carried into camera 2 and
 compared with where it was seen (the transfer error, normalized coordinates). The metric
@@ -37,12 +39,28 @@ import numpy as np
 from planar_vo.core.errors import PoseEstimationError
 from planar_vo.core.geometry.camera import Mounting
 
-__all__ = ['SURFACE_TERMS', 'GroundPrior', 'LocalGroundResult', 'ray_coefficients',
+__all__ = ['SURFACE_TERMS', 'GroundPrior', 'Hinge', 'LocalGroundResult', 'ray_coefficients',
            'refine_on_local_ground', 'surface_residuals']
 
 SURFACE_TERMS = ('grade', 'cross_slope', 'curvature', 'twist', 'cross_curvature')
 _N = 11  # x, y, yaw, roll, pitch, dh of frame 2, then the five surface terms
 _MIN_SIGMA_PX = 0.05  # residuals below this (px) are not believed: KLT is never better
+
+
+@dataclass(frozen=True)
+class Hinge:
+    """Where the surface ahead meets the wheels: the front axle, in base_link.
+
+    The body rests on its wheels, not on its centre line. Where the road between the wheels
+    sags or rises (a crowned road, a hill crossed at an angle) the surface passes through
+    their contacts, ``track`` apart; its height under the centre line is then off the wheel
+    plane, which read as a scale error of the step (0.2 % per 0.006 /m of curvature across
+    on rendered drives over hills, grades and a crown together).
+    """
+
+    x: float  # m ahead of base_link
+    track: float = 0.0  # m between the wheels' contacts there (0: a single caster)
+    height: float = 0.0  # m the road there lies above the wheel plane (below: a wheel on a bump)
 
 
 @dataclass(frozen=True)
@@ -82,12 +100,11 @@ class _Transfer:
     few elementwise passes. Gauss-Newton's evaluations were most of the local ground's cost.
     """
 
-    def __init__(self, v1: np.ndarray, m2: np.ndarray, mounting: Mounting, hinge: float,
-                 hinge_height: float = 0.0):
+    def __init__(self, v1: np.ndarray, m2: np.ndarray, mounting: Mounting, hinge: Hinge):
         """``v1``: (3, N) frame-1 rays in base_link; ``m2``: (2, N) seen in frame 2."""
         self.v1, self.m2 = v1, m2
         self.c1 = mounting.position
-        self.above_hinge = self.c1[2] - hinge_height  # the camera's height over the road there
+        self.above_hinge = self.c1[2] - hinge.height  # the camera's height over the road there
         self.optical_from_base = mounting.base_from_optical.T
         self.offset = np.zeros(12)  # o = G lifted - optical_from_base c1
         self.offset[:3] = -self.optical_from_base @ self.c1
@@ -171,23 +188,23 @@ def _arc_terms(params: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray
 
 
 def ray_coefficients(origin: np.ndarray, directions: np.ndarray,
-                     hinge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     hinge: Hinge) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where the rays ``origin + s directions`` ((3,), (3, N)) meet the surface.
 
     ``A s^2 + B s + C = 0`` with A, B and C (dA (5, N), dB (5, N), dC (5,)) dotted with the
-    surface terms (B less the directions' z, C less the origin's height).
+    surface terms (B less the directions' z, C less the origin's height). The curvature
+    across is ``kyy (y^2 - track^2 / 4) / 2``: naught at the wheels' contacts.
     """
-    a, cy = origin[0] - hinge, origin[1]
+    a, cy = origin[0] - hinge.x, origin[1]
     dx, dy = directions[0], directions[1]
     zero = np.zeros_like(dx)
     return (np.stack([zero, zero, 0.5 * dx * dx, dx * dy, 0.5 * dy * dy]),
             np.stack([dx, dy, a * dx, a * dy + cy * dx, cy * dy]),
-            np.array([a, cy, 0.5 * a * a, a * cy, 0.5 * cy * cy]))
+            np.array([a, cy, 0.5 * a * a, a * cy, 0.5 * cy * cy - hinge.track ** 2 / 8]))
 
 
 def surface_residuals(params: np.ndarray, v1: np.ndarray, m2: np.ndarray, mounting: Mounting,
-                      hinge: float, hinge_height: float = 0.0,
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      hinge: Hinge) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Residuals (2, N), Jacobian (11, 2, N) and validity (N,) of the transfer over the surface.
 
     Args:
@@ -195,18 +212,16 @@ def surface_residuals(params: np.ndarray, v1: np.ndarray, m2: np.ndarray, mounti
         v1: (3, N) frame-1 ray directions in base_link.
         m2: (2, N) observed frame-2 normalized image coordinates.
         mounting: camera 1 in base_link 1 (camera 2 is it after the motion and rotation).
-        hinge: x (m, base_link) where the surface leaves the wheel plane (the front axle).
-        hinge_height: the road's height there above the wheel plane, m (below it while the
-            front wheels stand on a bump).
+        hinge: where the surface leaves the wheel plane (the front axle).
     """
-    return _Transfer(v1, m2, mounting, hinge, hinge_height)(params)
+    return _Transfer(v1, m2, mounting, hinge)(params)
 
 
 def refine_on_local_ground(
     motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, mounting: Mounting,
-    prior: GroundPrior, *, focal_px: float, threshold_px: float, hinge: float,
+    prior: GroundPrior, *, focal_px: float, threshold_px: float, hinge: Hinge,
     start_threshold_px: float | None = None, cauchy: float = 1.0, iterations: int = 8,
-    hinge_height: float = 0.0, arc_sigma: float | None = None,
+    arc_sigma: float | None = None,
 ) -> LocalGroundResult:
     """Gauss-Newton over (motion, frame-2 rotation, surface) with priors and Cauchy weights.
 
@@ -236,7 +251,7 @@ def refine_on_local_ground(
     iterations += int(np.ceil(np.log2(wide / threshold_px)))
     inliers = np.zeros(len(v1), bool)
     arc_info = np.zeros((_N, _N))
-    transfer = _Transfer(v1_t, m2_t, mounting, hinge, hinge_height)
+    transfer = _Transfer(v1_t, m2_t, mounting, hinge)
     for i in range(iterations + 1):
         threshold = max(threshold_px, wide * 0.5 ** i)
         r, J, front = transfer(params)

@@ -21,6 +21,7 @@ from planar_vo.core.estimation.attitude import tilted_mounting
 from planar_vo.core.estimation.calibration import MountingCalibrator
 from planar_vo.core.estimation.local_ground import (
     GroundPrior,
+    Hinge,
     LocalGroundResult,
     ray_coefficients,
     refine_on_local_ground,
@@ -138,9 +139,10 @@ class LocalGroundFilter:
     """
 
     def __init__(self, mounting: Mounting, *, rates: np.ndarray, hinge: float,
-                 self_calibrate: bool, half_width: float = np.inf) -> None:
+                 self_calibrate: bool, half_width: float = np.inf, track: float = 0.0) -> None:
         self.rates = np.asarray(rates, dtype=float)  # upper bounds: roll, pitch, height rates
-        self.hinge = hinge
+        self.hinge = hinge  # m ahead of base_link: the front axle
+        self.track = track  # m between the front wheels
         self.half_width = half_width  # m either side of base_link: the surface's tracks
         self.self_calibrate = self_calibrate
         self.calibrator = MountingCalibrator(mounting)
@@ -148,12 +150,12 @@ class LocalGroundFilter:
 
     @classmethod
     def from_params(cls, mounting: Mounting, params: Any) -> LocalGroundFilter:
-        """From the parameters (rates, wheelbase, self_calibrate, surface_half_width)."""
+        """From the parameters (rates, wheelbase, track_width, self_calibrate, half width)."""
         rates = np.array([params['attitude_rate'], params['attitude_rate'],
                           params['bounce_rate']])
         return cls(mounting, rates=rates, hinge=params['wheelbase'],
                    self_calibrate=params['self_calibrate'],
-                   half_width=params['surface_half_width'])
+                   half_width=params['surface_half_width'], track=params['track_width'])
 
     def reset(self) -> None:
         """Nothing seen yet: a flat road is only the prior's best guess."""
@@ -263,10 +265,9 @@ class LocalGroundFilter:
         if hidden.any():
             fit = _on_all_tracks(fit, shown, len(v1))
         if travel > 0.0:
-            sides = side_offsets(fit, v1, m2, camera, self.hinge, model.focal_px,
+            sides = side_offsets(fit, v1, m2, camera, self._surface_hinge(), model.focal_px,
                                  half_width=self.half_width, left_out=beyond,
-                                 threshold_px=inlier_threshold,
-                                 hinge_height=-self.bumps.front_height)
+                                 threshold_px=inlier_threshold)
             self.side_drift = self.side_drift + min(travel / _SIDE_MEMORY_M, 1.0) * (
                 sides - self.side_drift)
         if on_bumps.any():
@@ -373,8 +374,7 @@ class LocalGroundFilter:
         fit = refine_on_local_ground(
             motion, v1, m2, camera, prior, focal_px=focal_px,
             threshold_px=inlier_threshold, start_threshold_px=start_threshold,
-            hinge=self.hinge, cauchy=_CAUCHY,
-            hinge_height=-self.bumps.front_height, arc_sigma=arc_sigma)
+            hinge=self._surface_hinge(), cauchy=_CAUCHY, arc_sigma=arc_sigma)
         travel = float(np.hypot(motion[0], motion[1]))
         if self._wheel_lift(fit.rotation, dt, travel) <= _IRREGULAR_LIFT:
             return fit, prior
@@ -386,8 +386,7 @@ class LocalGroundFilter:
         return refine_on_local_ground(
             motion, v1, m2, camera, lifted, focal_px=focal_px,
             threshold_px=inlier_threshold, start_threshold_px=start_threshold,
-            hinge=self.hinge, cauchy=_CAUCHY,
-            hinge_height=-self.bumps.front_height, arc_sigma=arc_sigma), lifted
+            hinge=self._surface_hinge(), cauchy=_CAUCHY, arc_sigma=arc_sigma), lifted
 
     def _fit_jolt(self, motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
                   prior: GroundPrior, focal_px: float, *, dt: float, inlier_threshold: float,
@@ -403,8 +402,7 @@ class LocalGroundFilter:
         fit = refine_on_local_ground(
             motion, v1, m2, camera, jolt, focal_px=focal_px,
             threshold_px=inlier_threshold, start_threshold_px=max(wide, start_threshold),
-            hinge=self.hinge, cauchy=_CAUCHY, hinge_height=-self.bumps.front_height,
-            arc_sigma=arc_sigma)
+            hinge=self._surface_hinge(), cauchy=_CAUCHY, arc_sigma=arc_sigma)
         if np.any(np.abs(fit.rotation[:2]) > JOLT_SIGMAS * self.rates[:2] * dt):
             # No vehicle turns that fast: an image that matches nothing (a shifted or corrupt
             # frame) fitted by a rotation.
@@ -439,8 +437,7 @@ class LocalGroundFilter:
 
         Also returns which of the road history's samples ahead (SAMPLES_AHEAD) a band covers.
         """
-        keep = off_surface_bands(fit, v1, m2, camera, self.hinge, focal_px,
-                                 hinge_height=-self.bumps.front_height)
+        keep = off_surface_bands(fit, v1, m2, camera, self._surface_hinge(), focal_px)
         # The road's history is not kept where a band went: the smooth surface is not the
         # road there (all four terrains with a sprung body: 0.50 -> 0.44 %; marking every
         # sample of a pair whose surface jumped kept the body's tilt unread on 2/3 of it).
@@ -455,8 +452,7 @@ class LocalGroundFilter:
             again = refine_on_local_ground(
                 motion, v1[keep], m2[keep], camera, prior, focal_px=focal_px,
                 threshold_px=inlier_threshold, start_threshold_px=start_threshold,
-                hinge=self.hinge, cauchy=_CAUCHY,
-                hinge_height=-self.bumps.front_height)
+                hinge=self._surface_hinge(), cauchy=_CAUCHY)
         except PoseEstimationError:
             return fit, rough
         if np.count_nonzero(again.inliers) < min_inliers or not refit_consistent(again, fit):
@@ -466,6 +462,10 @@ class LocalGroundFilter:
         weights = np.zeros(len(v1))
         weights[keep] = again.weights
         return dataclasses.replace(again, inliers=inliers, weights=weights), rough
+
+    def _surface_hinge(self) -> Hinge:
+        """Where the surface meets the front wheels, and how high (one on a bump ahead)."""
+        return Hinge(self.hinge, self.track, -self.bumps.front_height)
 
     def _samples_near(self, xs: np.ndarray) -> np.ndarray:
         """Which of the road history's samples ahead lie near a band or bump.
@@ -484,8 +484,8 @@ class LocalGroundFilter:
                 and fit.motion[0] > 0.0
                 and np.all(np.abs(prior.surface[2:]) < _BUMP_CURVATURE)):
             faster = faster_bands(fit.motion, fit.rotation, prior.surface, v1,
-                                  rays1[:, :2] / rays1[:, 2:], m2, camera, self.hinge,
-                                  hinge_height=-bumps.front_height)
+                                  rays1[:, :2] / rays1[:, 2:], m2, camera,
+                                  self._surface_hinge())
             bumps = bumps.seen(distance[faster], BAND_M)
         rise = None
         if lifted > _IRREGULAR_LIFT:
@@ -536,7 +536,7 @@ class LocalGroundFilter:
         """
         # the ray camera + s d meets the plane at s = 1 (d's z is minus the camera's height)
         d = np.c_[points - camera[:2], np.full(len(points), -camera[2])].T
-        dA, dB, dC = ray_coefficients(camera, d, self.hinge)
+        dA, dB, dC = ray_coefficients(camera, d, self._surface_hinge())
         qa = self.surface @ dA
         qb = self.surface @ dB + camera[2]
         qc = self.surface @ dC - camera[2]

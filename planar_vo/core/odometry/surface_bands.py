@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from planar_vo.core.estimation.local_ground import LocalGroundResult, surface_residuals
+from planar_vo.core.estimation.local_ground import Hinge, LocalGroundResult, surface_residuals
 from planar_vo.core.geometry.camera import Mounting
 
 __all__ = ['BAND_M', 'BAND_REACH', 'along_flow', 'faster_bands', 'off_surface_bands',
@@ -67,8 +67,7 @@ def wheel_plane_lateral(camera: Mounting, v1: np.ndarray) -> np.ndarray:
 
 
 def along_flow(fit: LocalGroundResult, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
-               hinge: float, focal_px: float,
-               hinge_height: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+               hinge: Hinge, focal_px: float) -> tuple[np.ndarray, np.ndarray]:
     """Each track's transfer residual under ``fit`` along its flow, and its whole one, px.
 
     The flow is the transfer's derivative in x. Both (N,).
@@ -78,14 +77,14 @@ def along_flow(fit: LocalGroundResult, v1: np.ndarray, m2: np.ndarray, camera: M
     """
     params = np.concatenate([fit.motion, fit.rotation, fit.surface])
     r, J, _ = surface_residuals(params, np.ascontiguousarray(v1.T),
-                                np.ascontiguousarray(m2.T), camera, hinge, hinge_height)
+                                np.ascontiguousarray(m2.T), camera, hinge)
     flow = J[0] / np.maximum(np.linalg.norm(J[0], axis=0), 1e-12)
     return focal_px * (r * flow).sum(axis=0), focal_px * np.linalg.norm(r, axis=0)
 
 
 def side_offsets(fit: LocalGroundResult, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
-                 hinge: float, focal_px: float, *, half_width: float, left_out: np.ndarray,
-                 threshold_px: float, hinge_height: float = 0.0) -> np.ndarray:
+                 hinge: Hinge, focal_px: float, *, half_width: float, left_out: np.ndarray,
+                 threshold_px: float) -> np.ndarray:
     """How far the road beyond ``half_width`` on the left and on the right is off the surface.
 
     (2,): the mean of its tracks' residuals under ``fit`` along their flow, in standard
@@ -96,7 +95,7 @@ def side_offsets(fit: LocalGroundResult, v1: np.ndarray, m2: np.ndarray, camera:
     inliers and those ``left_out`` (N,) of it for their side, within ``threshold_px``; not
     those on a bump or a band off the surface, which are off on both sides.
     """
-    along, whole = along_flow(fit, v1, m2, camera, hinge, focal_px, hinge_height)
+    along, whole = along_flow(fit, v1, m2, camera, hinge, focal_px)
     sigma = max(float(np.sqrt(np.mean(along[fit.inliers] ** 2))), _MIN_SIGMA_PX)
     lateral = wheel_plane_lateral(camera, v1)
     counted = fit.inliers | (left_out & (whole < threshold_px))
@@ -110,8 +109,7 @@ def side_offsets(fit: LocalGroundResult, v1: np.ndarray, m2: np.ndarray, camera:
 
 
 def off_surface_bands(fit: LocalGroundResult, v1: np.ndarray, m2: np.ndarray,
-                      camera: Mounting, hinge: float, focal_px: float,
-                      hinge_height: float = 0.0) -> np.ndarray | None:
+                      camera: Mounting, hinge: Hinge, focal_px: float) -> np.ndarray | None:
     """Which tracks to keep (N,) bool: bands of ground distance off the surface together go.
 
     None when no band is (or when too much of the ground would go).
@@ -122,7 +120,7 @@ def off_surface_bands(fit: LocalGroundResult, v1: np.ndarray, m2: np.ndarray,
     the flow is _BAND_SIGMAS standard errors and _BAND_OFFSET of one track's noise from
     none goes. The distance is the ray's on the wheel plane (close enough to bin).
     """
-    along, _ = along_flow(fit, v1, m2, camera, hinge, focal_px, hinge_height)
+    along, _ = along_flow(fit, v1, m2, camera, hinge, focal_px)
     distance = wheel_plane_distance(camera, v1)
     inliers = fit.inliers
     sigma = max(float(np.sqrt(np.mean(along[inliers] ** 2))), _MIN_SIGMA_PX)
@@ -142,7 +140,7 @@ def off_surface_bands(fit: LocalGroundResult, v1: np.ndarray, m2: np.ndarray,
 
 def faster_bands(motion: np.ndarray, rotation: np.ndarray, surface: np.ndarray,
                  v1: np.ndarray, m1: np.ndarray, m2: np.ndarray, camera: Mounting,
-                 hinge: float, hinge_height: float = 0.0) -> np.ndarray:
+                 hinge: Hinge) -> np.ndarray:
     """Tracks (N,) bool in bands of ground that move faster than the road around them.
 
     Each track's flow, relative to the flow ``motion`` and ``rotation`` predict over
@@ -153,7 +151,7 @@ def faster_bands(motion: np.ndarray, rotation: np.ndarray, surface: np.ndarray,
     """
     params = np.concatenate([motion, rotation, surface])
     r, _, valid = surface_residuals(params, np.ascontiguousarray(v1.T),
-                                    np.ascontiguousarray(m2.T), camera, hinge, hinge_height)
+                                    np.ascontiguousarray(m2.T), camera, hinge)
     flow = m2.T + r - m1.T  # predicted
     length2 = np.maximum((flow * flow).sum(axis=0), 1e-12)
     faster = -(r * flow).sum(axis=0) / length2
