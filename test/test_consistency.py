@@ -91,9 +91,11 @@ def test_pose_increments_over_one_second_are_consistent(scenario, frames, rate):
         values.append(increment_nees(results, truth, k, j))
     assert len(values) >= 0.95 * (frames - window)
     # With the local ground (the default) the pose's covariance over a second is cautious on
-    # the rigid flat drives: measured 0.26 (tight) to 0.97 (straight), where the plane model
-    # gave 1.9-4.1. Too large is the safe side for a filter; too small is not allowed.
-    assert 0.2 <= np.mean(values) <= 6.0, np.mean(values)
+    # the rigid flat drives: measured 0.17 (tight) to 1.15 (default), where the plane model
+    # gave 1.9-4.1. Too large is the safe side for a filter; too small is not allowed. (Tight
+    # was 0.29 until the surface met the wheels' contacts in stop 36: its error fell, t_rel
+    # 0.0216 -> 0.0186 %, its covariance did not.)
+    assert 0.15 <= np.mean(values) <= 6.0, np.mean(values)
 
 
 def step_mean_vx(pose_a, pose_b, dt):
