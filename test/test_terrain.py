@@ -368,9 +368,9 @@ def _render(terrain, frames=100, vehicle='car'):
 def _drive(terrain, ground_model, vehicle='car'):
     """The shipped defaults, only the nominal mounting configured, on :func:`_render`'s
     drive: (metrics, results, whether each frame saw irregular ground). A robot's wheelbase
-    is 0: its drive wheels are its front contacts (the caster trails)."""
+    is 0: its drive wheels, 0.5 m apart, are its front contacts (the caster trails)."""
     camera, mount, images, truth, _ = _render(terrain, vehicle=vehicle)
-    wheels = {} if vehicle == 'car' else {'wheelbase': 0.0}
+    wheels = {} if vehicle == 'car' else {'wheelbase': 0.0, 'track_width': 0.5}
     params = config.validate({**config.mounting_params(mount), 'ground_model': ground_model,
                               **wheels})
     vo = VisualOdometry.from_params(camera, params)
@@ -394,14 +394,15 @@ def test_hills_and_grades_hold_with_the_shipped_defaults(terrain, bound):
 
 
 
-# Measured (100 frames, wheelbase 0): hills 0.33 % (the plane model 2.9 %); grades 0.31 %
-# (1.02 %). 752x480, 300 frames at 30 Hz: flat 0.067, grades 0.10, hills 0.12 %.
+# Measured (100 frames, wheelbase 0, track 0.5 m): hills 0.42 % (the plane model 2.9 %);
+# grades 0.27 % (1.02 %); with the surface through the axle's centre (before stop 36) 0.33 %
+# and 0.31 %. 752x480, 300 frames at 30 Hz: flat 0.067, grades 0.10, hills 0.12 %.
 def test_a_differential_drive_robot_holds_on_hills():
     """A low camera on a small robot: the local ground from its drive wheels on."""
     local, results, _ = _drive('hills', 'local', 'diff_drive')
     plane, _, _ = _drive('hills', 'plane', 'diff_drive')
     assert all(r.status in ('first', 'ok') for r in results)
-    assert local['t_rel_percent'] < 0.45, local
+    assert local['t_rel_percent'] < 0.5, local
     assert local['t_rel_percent'] * 3 < plane['t_rel_percent'], (local, plane)
 
 @pytest.mark.parametrize('terrain', ['hills', 'grades', 'bumps'])
