@@ -151,7 +151,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--no-storage-compression', action='store_true',
                    help='do not zstd-compress the MCAP chunks')
     p.add_argument('--params-out', metavar='YAML',
-                   help='also write a planar_vo params file with this mounting')
+                   help='also write a planar_vo params file with this mounting and the '
+                        "vehicle's wheelbase and track_width")
     p.add_argument('--quiet', action='store_true', help='no progress output')
     return p
 
