@@ -45,6 +45,10 @@ __all__ = ['SURFACE_TERMS', 'GroundPrior', 'Hinge', 'LocalGroundResult', 'ray_co
 SURFACE_TERMS = ('grade', 'cross_slope', 'curvature', 'twist', 'cross_curvature')
 _N = 11  # x, y, yaw, roll, pitch, dh of frame 2, then the five surface terms
 _MIN_SIGMA_PX = 0.05  # residuals below this (px) are not believed: KLT is never better
+# Gauss-Newton stops when no term moves more than this (m, rad, 1/m): the reweighting makes
+# it converge linearly (halving the step each time), and the last steps below 1e-5 moved the
+# 34 rendered drives' t_rel by 0.4 % in sum (none by 0.02) for a third of the evaluations.
+_CONVERGED = 1e-5
 
 
 @dataclass(frozen=True)
@@ -275,7 +279,7 @@ def refine_on_local_ground(
             break
         step = -np.linalg.solve(H, g)
         params = params + step
-        if np.max(np.abs(step)) < 1e-7 and not changed and threshold == threshold_px:
+        if np.max(np.abs(step)) < _CONVERGED and not changed and threshold == threshold_px:
             break
     # The weighted fit's covariance, the sandwich of an M-estimator: the weights lower the
     # information the data give, and lower the noise that reaches the estimate as much.
