@@ -28,8 +28,13 @@ _SAME = 2.0  # m: a band this close to a remembered bump is that bump (or its sh
 _GONE = 1.0  # m past the camera: passed under its view, forgotten
 # The front wheels are on a remembered bump from this far before the front axle to this far
 # past it; off it, their height decays by this factor a pair (a bump is a frame or two long).
+# A bump is placed at its band's centre, which lies past the bump (its far face's rays), and
+# the wheelbase is the user's tape: ahead of the axle up to 0.6 m, 34 rendered drives summed
+# 4.76 % (a 30 Hz drive over all four terrains 0.165 %); up to 1.2 m, 4.53 (0.074 %). Six of
+# them with the wheelbase configured 0.3 m short: 1.39 -> 0.98; 0.3 m long: 1.08 -> 1.04.
+# (Behind the axle, a bump is forgotten at the camera's view first: _GONE.)
 _FRONT_BEFORE = 1.0
-_FRONT_AFTER = 0.6
+_FRONT_AFTER = 1.2
 _FRONT_DECAY = 0.3
 
 
