@@ -58,7 +58,6 @@ __all__ = ['VisualOdometry']
 _MAX_FAILED_FRAMES = 3  # frames in a row without an estimate before tracking counts as lost
 _MASK_REDRAW_YAW = np.radians(0.5)
 _OUTLIER_DROP = 3.0  # tracks this many inlier thresholds off the motion are dropped
-_WHEELBASE_INSIDE_VIEW = 0.5  # m: wheels set this far inside the view get advice
 
 
 class VisualOdometry:
@@ -224,26 +223,26 @@ class VisualOdometry:
     def _wheelbase_advice(self) -> dict[str, str]:
         """Advice when the wheels are set where the camera sees the ground.
 
-        The local ground may bend only past ``wheelbase``: set inside the view (a small
-        robot left at a car's 2.7 m), the road it sees is taken as flat. Measured on a
-        rendered robot on grades: 1.9 % instead of 0.10 %.
+        The local ground then bends from where the camera sees it (see
+        :meth:`LocalGroundFilter.see_ground_from`); the wheels' own place is still better.
         """
-        if self.ground is None:
+        if self.ground is None or not self.ground.wheels_inside_view():
             return {}
+        return {'wheelbase': (
+            f'wheelbase is {self.ground.wheelbase:.2f} m but the camera sees the ground from '
+            f'{self.ground.hinge:.2f} m ahead of base_link: the road is taken to bend from '
+            'there. Set wheelbase to where the front wheels stand (a differential-drive robot: '
+            'its front caster, or 0 when its drive wheels lead)')}
+
+    def _ground_seen_from(self) -> float | None:
+        """How far ahead of base_link (m) the camera's view of the ground begins, if it does."""
         width, height = self.camera.width, self.camera.height
+        if width <= 0 or height <= 0:
+            return None
         bottom = np.c_[np.linspace(0.0, width - 1.0, 9), np.full(9, height - 1.0)]
         points, valid = self.mounting.ground_points(rays_through(self.camera.normalize(bottom)),
                                                     self.horizon_margin)
-        if not np.any(valid):
-            return {}
-        near = float(np.min(points[valid, 0]))
-        if self.ground.hinge <= near + _WHEELBASE_INSIDE_VIEW:
-            return {}
-        return {'wheelbase': (
-            f'wheelbase is {self.ground.hinge:.2f} m but the camera sees the ground from '
-            f'{near:.2f} m ahead of base_link: the road may bend only past the wheelbase. Set '
-            'wheelbase to where the front wheels stand (a differential-drive robot: its front '
-            'caster, or 0 when its drive wheels lead)')}
+        return float(np.min(points[valid, 0])) if np.any(valid) else None
 
     def _mounting_diagnostics(self) -> tuple[dict[str, str], dict[str, str]]:
         if self._tilt_filter is None or not self._tilt_filter.self_calibrate:
@@ -292,8 +291,11 @@ class VisualOdometry:
                 self_calibrate=self.attitude_filter.self_calibrate)
         if self.ground is not None:
             self.ground = LocalGroundFilter(mounting, rates=self.ground.rates,
-                                            hinge=self.ground.hinge,
-                                            self_calibrate=self.ground.self_calibrate)
+                                            hinge=self.ground.wheelbase,
+                                            self_calibrate=self.ground.self_calibrate,
+                                            half_width=self.ground.half_width,
+                                            track=self.ground.track)
+            self.ground.see_ground_from(self._ground_seen_from())
 
     def diagnostics(self) -> dict[str, str]:
         """The estimator's state as /diagnostics key/values (the node adds them as they are)."""
@@ -321,6 +323,8 @@ class VisualOdometry:
         self._model = TransferModel.from_camera(mounting, camera)
         self.camera, self.mounting = camera, mounting
         self.front.set_geometry(camera, mounting, mask)
+        if self.ground is not None:
+            self.ground.see_ground_from(self._ground_seen_from())
 
     # ---------------------------------------------------------------- one frame
     def process(self, gray: np.ndarray, stamp: float) -> FrameResult:
