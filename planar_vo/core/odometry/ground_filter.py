@@ -176,7 +176,7 @@ class LocalGroundFilter:
         than that, unless the wheels are set inside its view: a small robot left at a car's
         2.7 m took the road it saw as flat, 2.6 % off on hills (0.12 % with its own 0). Set
         more than _WHEELS_INSIDE_VIEW inside the view, the road bends from where it is seen
-        (that robot: 0.22 %). A car's camera sees the road from past its front wheels.
+        (that robot: 0.23 %). A car's camera sees the road from past its front wheels.
         """
         inside = near is not None and self.wheelbase > near + _WHEELS_INSIDE_VIEW
         self.hinge = max(near, 0.0) if inside else self.wheelbase
