@@ -26,9 +26,12 @@ MAX_FRAMES = 300
 # Measured: 0.14-0.27 mm and 0.002-0.003 deg; right after the blank frames up to 2.97 mm and
 # 0.008 deg in one run, 5.5 mm and 0.026 deg in another (which frames of the bag node B sees
 # depends on best-effort losses and on how many frames the warnings took): noisy, so the
-# bounds are 2.7x the worst of the two runs.
+# bounds are 2.7x the worst of the two runs. Stop 37, 13 runs: right after the blank frames
+# 2.2-4.2 mm and 0.010-0.036 deg, once 0.074 deg (a whole `make test` on a fresh clone, where
+# the yaw bound was 0.07 deg); the other steps under 2.5 mm and 0.01 deg. The yaw bound is 2x
+# that worst run.
 STEP_ERROR_M = 0.015
-STEP_YAW_ERROR_RAD = np.radians(0.07)
+STEP_YAW_ERROR_RAD = np.radians(0.15)
 
 
 def _node_exe() -> str:
