@@ -99,7 +99,7 @@ def test_a_bump_coming_into_view_is_found_where_it_is():
     """Driving a flat road towards an 8 cm bump: once it comes into the far tracks the filter
     remembers it within half a metre of where it is, and keeps it there as it comes closer."""
     rng = np.random.default_rng(9)
-    ground = LocalGroundFilter(MOUNT, rates=np.array([0.5, 0.5, 0.3]), hinge=HINGE,
+    ground = LocalGroundFilter(MOUNT, rates=np.array([0.5, 0.5, 0.3]), wheelbase=HINGE,
                                self_calibrate=False)
     model = TransferModel(*MOUNT.ground_to_optical(), 500.0, MOUNT)
     bump_x = 12.0

@@ -336,7 +336,7 @@ def test_a_track_on_a_grade_is_moved_to_its_stamp_as_a_point_on_the_grade():
     mounting = Mounting(x=1.2, y=0.0, height=1.1, roll=0.0, pitch=0.14, yaw=0.0)
     A, b = mounting.ground_to_optical()
     model = TransferModel(A, b, 500.0, mounting)
-    ground = LocalGroundFilter(mounting, rates=np.array([0.3, 0.3, 0.1]), hinge=2.7,
+    ground = LocalGroundFilter(mounting, rates=np.array([0.3, 0.3, 0.1]), wheelbase=2.7,
                                self_calibrate=False)
     ground.surface = np.array([0.05, 0.01, 0.03, 0.01, 0.02])  # grade, crown, a crest...
     x, y = np.meshgrid(np.linspace(3.5, 6.0, 6), np.linspace(-1.5, 1.5, 5))

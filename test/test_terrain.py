@@ -115,7 +115,7 @@ def test_a_rear_wheel_climbing_a_bump_lifts_the_car_beyond_its_learned_height_ra
     rng = np.random.default_rng(11)
     x, y = rng.uniform(3.1, 4.7, 300), rng.uniform(-2.0, 2.0, 300)
     points = np.c_[x, y, np.zeros_like(x)]
-    ground = LocalGroundFilter(MOUNT, rates=np.array([0.5, 0.5, 0.3]), hinge=HINGE,
+    ground = LocalGroundFilter(MOUNT, rates=np.array([0.5, 0.5, 0.3]), wheelbase=HINGE,
                                self_calibrate=False)
     model = TransferModel(*MOUNT.ground_to_optical(), 500.0, MOUNT)
     step = np.array([0.3, 0.0, 0.0])
@@ -166,7 +166,7 @@ def test_a_fit_that_slides_off_its_arc_gives_way_to_the_jolt_fit():
     model = TransferModel(*MOUNT.ground_to_optical(), 500.0, MOUNT)
     start = RansacResult(step + [0.01, 0.0, 0.0], np.eye(3) * 1e-4, np.ones(len(x), bool), 1,
                          0.3)
-    ground = Astray(MOUNT, rates=np.array([0.5, 0.5, 0.3]), hinge=HINGE, self_calibrate=False)
+    ground = Astray(MOUNT, rates=np.array([0.5, 0.5, 0.3]), wheelbase=HINGE, self_calibrate=False)
     result, _ = ground.refine(start, np.c_[m1, np.ones(len(m1))], m2, MOUNT, model, dt=0.1,
                               inlier_threshold=2.0, start_threshold=8.0, min_inliers=10)
     assert np.all(np.abs(result.motion - step) < [2e-3, 2e-3, 2e-4]), (result.motion, step)
@@ -236,7 +236,7 @@ def test_a_fit_that_slides_with_the_jolt_fit_too_is_held_to_its_arc():
     wide = np.c_[rng.uniform(3.0, 5.0, 200), rng.uniform(-2.0, 2.0, 200), np.zeros(200)]
     calm = _observe(wide, MOUNT, step, np.zeros(2))
     calm = (calm[0], calm[1] + rng.normal(0.0, 0.2 / 500.0, calm[1].shape))
-    ground = LocalGroundFilter(MOUNT, rates=np.array([0.5, 0.5, 0.3]), hinge=HINGE,
+    ground = LocalGroundFilter(MOUNT, rates=np.array([0.5, 0.5, 0.3]), wheelbase=HINGE,
                                self_calibrate=False)
     for _ in range(40):
         pair(ground, calm)
@@ -266,7 +266,7 @@ def _crowned_road_drive(half_width, seed, crown=1.75, pairs=40):
     points = np.c_[x, y, -slope * (rho + n)]  # relative to the wheels' plane (slope * n)
     step = twist_motion(np.array([10.0, 0.0, 0.0]), 0.05)
     model = TransferModel(*MOUNT.ground_to_optical(), 500.0, MOUNT)
-    ground = LocalGroundFilter(MOUNT, rates=np.array([0.5, 0.5, 0.3]), hinge=HINGE,
+    ground = LocalGroundFilter(MOUNT, rates=np.array([0.5, 0.5, 0.3]), wheelbase=HINGE,
                                self_calibrate=False, half_width=half_width)
     errors = []
     for _ in range(pairs):

@@ -149,11 +149,11 @@ class LocalGroundFilter:
     never changed in place, so a shallow copy is a snapshot.
     """
 
-    def __init__(self, mounting: Mounting, *, rates: np.ndarray, hinge: float,
+    def __init__(self, mounting: Mounting, *, rates: np.ndarray, wheelbase: float,
                  self_calibrate: bool, half_width: float = np.inf, track: float = 0.0) -> None:
         self.rates = np.asarray(rates, dtype=float)  # upper bounds: roll, pitch, height rates
-        self.wheelbase = hinge  # m ahead of base_link: the front axle, as configured
-        self.hinge = hinge  # m: where the road ahead may bend from (see_ground_from)
+        self.wheelbase = wheelbase  # m ahead of base_link: the front axle, as configured
+        self.hinge = wheelbase  # m: where the road ahead may bend from (see_ground_from)
         self.track = track  # m between the front wheels
         self.half_width = half_width  # m either side of base_link: the surface's tracks
         self.self_calibrate = self_calibrate
@@ -165,9 +165,15 @@ class LocalGroundFilter:
         """From the parameters (rates, wheelbase, track_width, self_calibrate, half width)."""
         rates = np.array([params['attitude_rate'], params['attitude_rate'],
                           params['bounce_rate']])
-        return cls(mounting, rates=rates, hinge=params['wheelbase'],
+        return cls(mounting, rates=rates, wheelbase=params['wheelbase'],
                    self_calibrate=params['self_calibrate'],
                    half_width=params['surface_half_width'], track=params['track_width'])
+
+    def for_mounting(self, mounting: Mounting) -> LocalGroundFilter:
+        """A filter of the same vehicle for a new mounting: nothing learned, the view unknown."""
+        return LocalGroundFilter(mounting, rates=self.rates, wheelbase=self.wheelbase,
+                                 self_calibrate=self.self_calibrate,
+                                 half_width=self.half_width, track=self.track)
 
     def see_ground_from(self, near: float | None) -> None:
         """The camera sees the ground from ``near`` m ahead of base_link (None: unknown).

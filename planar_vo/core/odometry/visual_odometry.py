@@ -290,11 +290,7 @@ class VisualOdometry:
                 self.attitude_filter.noise, mounting,
                 self_calibrate=self.attitude_filter.self_calibrate)
         if self.ground is not None:
-            self.ground = LocalGroundFilter(mounting, rates=self.ground.rates,
-                                            hinge=self.ground.wheelbase,
-                                            self_calibrate=self.ground.self_calibrate,
-                                            half_width=self.ground.half_width,
-                                            track=self.ground.track)
+            self.ground = self.ground.for_mounting(mounting)
             self.ground.see_ground_from(self._ground_seen_from())
 
     def diagnostics(self) -> dict[str, str]:
