@@ -21,6 +21,7 @@ from planar_vo.core.estimation.attitude import (
 from planar_vo.core.estimation.calibration import MountingCalibrator
 from planar_vo.core.estimation.ransac import PoseEstimationError, RansacResult, TransferModel
 from planar_vo.core.geometry.camera import Mounting
+from planar_vo.core.odometry.covariance import correlated_covariance
 
 __all__ = ['JOLT_SIGMAS', 'AttitudeNoise', 'AttitudeFilter', 'jolt_threshold']
 
@@ -171,8 +172,9 @@ class AttitudeFilter:
         self._learn_rate(joint.change, joint.change_cov, dt)
         calibrated = None
         if self.self_calibrate:
-            calibrated, applied = self.calibrator.step(joint.motion, joint.covariance,
-                                                       joint.attitude, dt)
+            # Its slip fit takes many steps: their errors are correlated.
+            slip_cov = correlated_covariance(joint.covariance, dt)
+            calibrated, applied = self.calibrator.step(joint.motion, slip_cov, joint.attitude, dt)
             motion_cov = motion_cov + applied
         return RansacResult(joint.motion, motion_cov, joint.inliers, est.hypotheses,
                             joint.rms_px), calibrated

@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['shared_error_covariance', 'unseen_motion_covariance', 'LOST_TWIST_VARIANCE',
-           'RESTART_VARIANCE']
+__all__ = ['correlated_covariance', 'shared_error_covariance', 'unseen_motion_covariance',
+           'LOST_TWIST_VARIANCE', 'RESTART_VARIANCE']
 
 # Variance added per second when a frame gives no estimate: a vehicle can move about this
 # much (m/s, rad/s) that we did not see. Generous on purpose: a filter should distrust us.
@@ -36,6 +36,16 @@ SHARED_SCALE_ERROR = 3e-4
 SHARED_SCALE_WINDOW_S = 1.0
 
 
+def correlated_covariance(covariance: np.ndarray, dt: float) -> np.ndarray:
+    """A motion's covariance as one of a run of motions whose errors are correlated.
+
+    What a sum of them over a window longer than ``ERROR_CORRELATION_S`` has per motion
+    (coth(dt / 2 tau) times the independent one's): what the pose accumulates, and what a fit
+    over many motions (self-calibration) must take each as.
+    """
+    return covariance / np.tanh(max(dt, 1e-3) / (2.0 * ERROR_CORRELATION_S))
+
+
 def shared_error_covariance(motion: np.ndarray, covariance: np.ndarray,
                             dt: float) -> np.ndarray:
     """What one motion (3,) of ``dt`` s adds to the pose's covariance (3, 3).
@@ -43,7 +53,7 @@ def shared_error_covariance(motion: np.ndarray, covariance: np.ndarray,
     The errors it shares with the neighbouring motions included.
     """
     dt = max(dt, 1e-3)
-    correlated = covariance / np.tanh(dt / (2.0 * ERROR_CORRELATION_S))
+    correlated = correlated_covariance(covariance, dt)
     along = np.r_[motion[:2], 0.0]
     steps_in_window = SHARED_SCALE_WINDOW_S / dt
     return correlated + SHARED_SCALE_ERROR ** 2 * steps_in_window * np.outer(along, along)

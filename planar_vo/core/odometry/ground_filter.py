@@ -31,6 +31,7 @@ from planar_vo.core.geometry.camera import Mounting
 from planar_vo.core.geometry.se2 import off_arc
 from planar_vo.core.odometry.attitude_filter import JOLT_SIGMAS, jolt_threshold
 from planar_vo.core.odometry.bumps_ahead import BumpsAhead
+from planar_vo.core.odometry.covariance import correlated_covariance
 from planar_vo.core.odometry.road_profile import SAMPLES_AHEAD, RoadProfile
 from planar_vo.core.odometry.sprung_body import SprungBody
 from planar_vo.core.odometry.surface_bands import (
@@ -328,7 +329,9 @@ class LocalGroundFilter:
         self.last_fit = (fit.measured_rotation, fit.surface, fit.surface_cov, used, dt,
                          model.focal_px, camera.position)
         if self.self_calibrate:
-            calibrated, applied = self.calibrator.step(fit.motion, fit.covariance,
+            # Its slip fit takes many steps: their errors are correlated.
+            slip_cov = correlated_covariance(fit.covariance, dt)
+            calibrated, applied = self.calibrator.step(fit.motion, slip_cov,
                                                        self._tilt_sample(fit, used), dt)
             motion_cov = motion_cov + applied
         return RansacResult(fit.motion, motion_cov, fit.inliers, est.hypotheses,
