@@ -67,7 +67,9 @@ def test_attitude_run_tracks_and_self_calibrates_on_the_default_bag(attitude_run
     # Measured off the truth: pitch -2.1e-4 rad (std 2.8e-4), roll 2.8e-4 (std 2.8e-4),
     # yaw -1.4e-5 (std ~1e-4; its bound is the std, 2-3x of so small a value would be
     # luck), camera_x 11 mm (std 8.8 mm). Each also within 3 of its own reported std.
-    for name, bound in (('camera_pitch', 6e-4), ('camera_roll', 7e-4), ('camera_yaw', 1e-4),
+    # Since stop 39 the slips count as correlated over 0.15 s (their std 1.9e-4 here, the
+    # yaw's bound with it) and 600 tracks are kept: yaw -1.24e-4, not applied.
+    for name, bound in (('camera_pitch', 6e-4), ('camera_roll', 7e-4), ('camera_yaw', 2e-4),
                         ('camera_x', 0.03)):
         error = abs(learned[name]['value'] - true[name])
         assert error <= bound, (name, learned[name], true[name])

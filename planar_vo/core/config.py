@@ -93,8 +93,9 @@ SCHEMA: tuple[Param, ...] = (
     Param('rectified_input', False, 'The images are rectified (e.g. image_proc image_rect): '
           'use the CameraInfo projection P and no distortion.', read_only=True),
     # Tracking.
-    Param('max_features', 400, 'Features kept tracked; replenished on a grid. 700 with '
-          'estimate_attitude on a sprung body (the tilt is measured from the tracks).',
+    Param('max_features', 600, 'Features kept tracked; replenished on a grid. More hold the '
+          'local ground on terrain (600 against 400: -24 % t_rel over 60 rendered drives, '
+          'about 0.75 ms a frame per 100); 700 with estimate_attitude on a sprung body.',
           20, 5000),
     Param('quality_level', 0.005, 'Shi-Tomasi quality relative to the best corner.',
           1e-5, 0.5),

@@ -38,7 +38,7 @@ class Tracker:
     def __init__(
         self,
         *,
-        max_features: int = 400,
+        max_features: int = 600,
         quality_level: float = 0.005,
         min_distance: float = 8.0,
         window: int = 25,
