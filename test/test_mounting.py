@@ -47,7 +47,7 @@ def sprung_car():
 @pytest.fixture(scope='module')
 def sprung_car_as_advised(sprung_car):
     """The sprung car configured as the README advises (conftest.sprung_body_params: the
-    attitude tracked, the body's pivot, 700 tracks, self-calibration off) on sprung_car's
+    attitude tracked, the body's pivot, 700 tracks, self-calibration on) on sprung_car's
     frames, run once: (params, results) for the two comparisons that score it."""
     renderer, _, images = sprung_car
     params = _params(renderer.mounting, sprung_body_params('car'))
@@ -109,7 +109,7 @@ def test_sprung_body_is_within_2x_of_a_rigid_mount_and_beats_opencv(sprung_car,
                      rigid_traj)
     advised, ours = sprung_car_as_advised  # the run below, shared with the next test
     assert advised == _params(m, {
-        **tracks, 'ground_model': 'plane', 'estimate_attitude': True, 'self_calibrate': False,
+        **tracks, 'ground_model': 'plane', 'estimate_attitude': True,
         'body_pivot_below_camera': m.height - body.pivot_z,
         'body_pivot_behind_camera': m.x - body.pivot_x})
     ours = _metrics(ours, traj)
