@@ -21,9 +21,9 @@ from test.ekf import PlanarEkf
 # one (conftest.sprung_body_params: the attitude estimated, the body's pivot set, the mounting
 # the measured one, self-calibrating). The rigid model's twist NEES there was 250 and 460;
 # with the attitude but the first frame's height taken as exact, 14 and 46 (the bounce, 0.5 %
-# of every step);
-# with the bounce's learned spread in the covariance, 1.8 and 1.7 (1 s windows 3.1, 2.6); with
-# the height carried from pair to pair and its error as the scale's, 2.4 and 2.4 (2.2, 2.6).
+# of every step); with the bounce's learned spread in the covariance, 1.8 and 1.7 (1 s
+# windows 3.1, 2.6); with the height carried from pair to pair and its error as the scale's,
+# 2.4 and 2.4 (2.2, 2.6).
 SPRUNG = ('car', 'rough')
 # (scenario, frames, rate): the four rigid drives at 30 Hz, the bundled bag's scenario at
 # its 15 Hz (faster motion per frame, larger speed changes), and the sprung car bodies.
