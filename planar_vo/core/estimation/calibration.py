@@ -96,7 +96,10 @@ class MountingCalibrator:
             dt: float) -> None:
         """One estimated step: base_link motion (through :attr:`working`), frame-2 tilt.
 
-        ``tilt`` None: the step says nothing about the tilt (only about yaw and camera_x).
+        ``motion_cov``: the step's covariance as one of a run of steps whose errors are
+        correlated (consecutive pairs share their tracks): taken as independent, the fit was
+        sure of a yaw that was noise. ``tilt`` None: the step says nothing about the tilt
+        (only about yaw and camera_x).
         """
         # Arrays are replaced, never changed in place: VisualOdometry.process restores the
         # attributes when a frame fails half-way.
