@@ -65,13 +65,16 @@ class BumpsAhead:
                 ahead.append(centre)
         return BumpsAhead(tuple(sorted(ahead)), self.front_height)
 
+    def at_front(self, hinge: float) -> bool:
+        """Whether a remembered bump is at the front axle (``hinge``, m ahead of base_link)."""
+        return any(-_FRONT_BEFORE < x - hinge < _FRONT_AFTER for x in self.ahead)
+
     def lifted(self, rise: float | None, hinge: float) -> BumpsAhead:
         """Self after a pair.
 
         ``rise``: the front axle's rise above the smooth road (m) if a wheel lifted, else None.
         """
-        on_front = any(-_FRONT_BEFORE < x - hinge < _FRONT_AFTER for x in self.ahead)
-        if rise is not None and on_front:
+        if rise is not None and self.at_front(hinge):
             return BumpsAhead(self.ahead, self.front_height + rise)
         return BumpsAhead(self.ahead, self.front_height * _FRONT_DECAY)
 

@@ -32,12 +32,14 @@ from planar_vo.core.geometry.se2 import off_arc
 from planar_vo.core.odometry.attitude_filter import JOLT_SIGMAS, jolt_threshold
 from planar_vo.core.odometry.bumps_ahead import BumpsAhead
 from planar_vo.core.odometry.covariance import correlated_covariance
+from planar_vo.core.odometry.raised_ground import RaisedGround
 from planar_vo.core.odometry.road_profile import SAMPLES_AHEAD, RoadProfile
 from planar_vo.core.odometry.sprung_body import SprungBody
 from planar_vo.core.odometry.surface_bands import (
     BAND_M,
     BAND_REACH,
-    faster_bands,
+    bands_of,
+    flow_excess,
     off_surface_bands,
     refit_consistent,
     side_offsets,
@@ -98,6 +100,8 @@ _HISTORY_TRAVEL = 0.01  # m: a pair this far forward gives the history's reading
 # at 0.0075, 4.84 at 0.015, 5.14 at 0.02; four drives over hills without bumps unchanged.
 _BUMP_PAIRS = 10
 _BUMP_CURVATURE = 0.01
+# m: the front wheels' height on a bump that counts as known (from a band, or to sample under)
+_KNOWN_HEIGHT = 0.005
 # On uneven ground the surface (a quadratic hinged at the front axle) holds only so far: the
 # tracks beyond _UNEVEN_REACH (m from the camera, over the ground) carry its error into the
 # motion. The ground ahead is uneven when the last pair was irregular or one of its
@@ -159,6 +163,7 @@ class LocalGroundFilter:
         self.half_width = half_width  # m either side of base_link: the surface's tracks
         self.self_calibrate = self_calibrate
         self.calibrator = MountingCalibrator(mounting)
+        self.camera_height = float(mounting.position[2])  # m over the wheel plane (last pair)
         self.reset()
 
     @classmethod
@@ -213,6 +218,8 @@ class LocalGroundFilter:
         self.last_fit: tuple | None = None  # what the last refinement saw, for advance()
         self.wheel_lift = 0.0  # m: how far the last pair's jolt lifted a wheel off the road
         self.bumps = BumpsAhead()
+        self.raised = RaisedGround()  # ground seen above the road, until the wheels pass it
+        self._raised_seen: RaisedGround | None = None  # with the last pair's samples
         self.history_reads = False  # the road's history has read the camera's tilt
         self.seen_tilt: np.ndarray | None = None  # its last reading, if believable
 
@@ -512,8 +519,19 @@ class LocalGroundFilter:
         return dataclasses.replace(again, inliers=inliers, weights=weights), rough
 
     def _surface_hinge(self) -> Hinge:
-        """Where the surface meets the front wheels, and how high (one on a bump ahead)."""
-        return Hinge(self.hinge, self.track, -self.bumps.front_height)
+        """Where the surface meets the front wheels, and how high (one on a bump ahead).
+
+        A bump found ahead as a band (square across the path) gives the front wheels' height
+        while they are on it; otherwise the raised ground seen under each front wheel does (a
+        bump crossed at an angle: 34 rendered drives 3.47 -> 3.22 % t_rel summed, stop 41).
+        """
+        height = -self.bumps.front_height
+        if not (self.bumps.at_front(self.hinge) or self.bumps.front_height > _KNOWN_HEIGHT):
+            wheels = np.array([[self.hinge, 0.5 * self.track], [self.hinge, -0.5 * self.track]])
+            under = self.raised.height_at(wheels, self.camera_height)
+            if np.any(under > 0.0):
+                height = min(height, -float(np.mean(under)))
+        return Hinge(self.hinge, self.track, height)
 
     def _samples_near(self, xs: np.ndarray) -> np.ndarray:
         """Which of the road history's samples ahead lie near a band or bump.
@@ -531,10 +549,16 @@ class LocalGroundFilter:
         if (lifted <= _IRREGULAR_LIFT and self.rate_samples >= _BUMP_PAIRS
                 and fit.motion[0] > 0.0
                 and np.all(np.abs(prior.surface[2:]) < _BUMP_CURVATURE)):
-            faster = faster_bands(fit.motion, fit.rotation, prior.surface, v1,
-                                  rays1[:, :2] / rays1[:, 2:], m2, camera,
-                                  self._surface_hinge())
-            bumps = bumps.seen(distance[faster], BAND_M)
+            hinge = self._surface_hinge()
+            excess, usable = flow_excess(fit.motion, fit.rotation, prior.surface, v1,
+                                         rays1[:, :2] / rays1[:, 2:], m2, camera, hinge)
+            bumps = bumps.seen(distance[bands_of(excess, usable, distance)], BAND_M)
+            if abs(hinge.height) < _KNOWN_HEIGHT:
+                # Samples only while the front wheels are on the road: on a bump the surface's
+                # hinge is only as right as the height it was given.
+                ground = np.c_[distance, wheel_plane_lateral(camera, v1)][usable]
+                self._raised_seen = self.raised.seen(camera.position, ground, excess[usable],
+                                                     self.hinge)
         rise = None
         if lifted > _IRREGULAR_LIFT:
             # The front axle's height change in the pair, less the smooth road's there.
@@ -553,6 +577,9 @@ class LocalGroundFilter:
             return
         rotation, surface, surface_cov, used, dt, focal_px, camera = self.last_fit
         self.bumps = self.bumps.moved(float(motion[0]), float(camera[0]))
+        self.camera_height = float(camera[2])
+        seen, self._raised_seen = self._raised_seen or self.raised, None
+        self.raised = seen.moved(np.asarray(motion, dtype=float), self.hinge)
         self.last_fit = None
         self.profile = self.profile.with_pair(np.asarray(motion, dtype=float), rotation[:2],
                                               surface, surface_cov, used, self.hinge,

@@ -15,8 +15,9 @@ import numpy as np
 from planar_vo.core.estimation.local_ground import Hinge, LocalGroundResult, surface_residuals
 from planar_vo.core.geometry.camera import Mounting
 
-__all__ = ['BAND_M', 'BAND_REACH', 'along_flow', 'faster_bands', 'off_surface_bands',
-           'refit_consistent', 'side_offsets', 'wheel_plane_distance', 'wheel_plane_lateral']
+__all__ = ['BAND_M', 'BAND_REACH', 'along_flow', 'bands_of', 'faster_bands', 'flow_excess',
+           'off_surface_bands', 'refit_consistent', 'side_offsets', 'wheel_plane_distance',
+           'wheel_plane_lateral']
 
 # Bands of the ground off the smooth surface together (a speed bump ahead): left out and the
 # pair refined again (off_surface_bands). Measured on three rendered bumps drives (752x480,
@@ -138,15 +139,14 @@ def off_surface_bands(fit: LocalGroundResult, v1: np.ndarray, m2: np.ndarray,
     return keep
 
 
-def faster_bands(motion: np.ndarray, rotation: np.ndarray, surface: np.ndarray,
-                 v1: np.ndarray, m1: np.ndarray, m2: np.ndarray, camera: Mounting,
-                 hinge: Hinge) -> np.ndarray:
-    """Tracks (N,) bool in bands of ground that move faster than the road around them.
+def flow_excess(motion: np.ndarray, rotation: np.ndarray, surface: np.ndarray,
+                v1: np.ndarray, m1: np.ndarray, m2: np.ndarray, camera: Mounting,
+                hinge: Hinge) -> tuple[np.ndarray, np.ndarray]:
+    """How much faster each track moved than over the smooth surface, and which count.
 
     Each track's flow, relative to the flow ``motion`` and ``rotation`` predict over
-    ``surface`` (the surface before the pair); a band's median is compared with the mean of
-    the bands a metre before and after it (at the far edge, where a bump first shows: the band
-    a metre before), so that a smooth trend (a hill, a rotation not quite right) is not a band.
+    ``surface`` (the surface before the pair, so that the pair's own fit cannot bend onto a
+    bump first): (N,) the excess (0.05: 5 % faster), and (N,) bool the tracks it holds for.
     ``m1``, ``m2``: (N, 2) normalized coordinates in frames 1 and 2.
     """
     params = np.concatenate([motion, rotation, surface])
@@ -156,15 +156,36 @@ def faster_bands(motion: np.ndarray, rotation: np.ndarray, surface: np.ndarray,
     length2 = np.maximum((flow * flow).sum(axis=0), 1e-12)
     faster = -(r * flow).sum(axis=0) / length2
     across = (r[0] * flow[1] - r[1] * flow[0]) / length2
-    band = np.floor(wheel_plane_distance(camera, v1) / BAND_M).astype(int)
     # A track off across its flow, or far faster, is on something else (a passing car).
     ok = valid & np.isfinite(faster) & (np.abs(faster) < _FASTER_MAX) & (np.abs(across) < _ACROSS)
+    return faster, ok
+
+
+def faster_bands(motion: np.ndarray, rotation: np.ndarray, surface: np.ndarray,
+                 v1: np.ndarray, m1: np.ndarray, m2: np.ndarray, camera: Mounting,
+                 hinge: Hinge) -> np.ndarray:
+    """Tracks (N,) bool in bands of ground that move faster than the road around them.
+
+    Arguments as :func:`flow_excess`; the bands as :func:`bands_of`.
+    """
+    faster, ok = flow_excess(motion, rotation, surface, v1, m1, m2, camera, hinge)
+    return bands_of(faster, ok, wheel_plane_distance(camera, v1))
+
+
+def bands_of(faster: np.ndarray, ok: np.ndarray, distance: np.ndarray) -> np.ndarray:
+    """Tracks (N,) bool in bands of ground (``distance``, m) that move faster than around them.
+
+    ``faster``, ``ok``: :func:`flow_excess`'s. A band's median is compared with the mean of the
+    bands a metre before and after it (at the far edge, where a bump first shows: the band a
+    metre before), so that a smooth trend (a hill, a rotation not quite right) is not a band.
+    """
+    band = np.floor(distance / BAND_M).astype(int)
     median = {}
     for b in np.unique(band[ok]):
         members = ok & (band == b)
         if np.count_nonzero(members) >= _BAND_MIN_TRACKS:
             median[b] = float(np.median(faster[members]))
-    out = np.zeros(len(v1), bool)
+    out = np.zeros(len(faster), bool)
     for b, value in median.items():
         if b - 2 in median and b + 2 in median:
             around = 0.5 * (median[b - 2] + median[b + 2])

@@ -1,0 +1,103 @@
+"""Ground seen above the smooth road, remembered where it lies until the front wheels reach it.
+
+While a front wheel stands on a speed bump the road past the front axle lies below the wheels'
+plane, which a surface hinged there holds only with a height at the hinge (its step comes out
+up to 8 % short). A bump found as a band square across the path (:mod:`bumps_ahead`) gives that
+height; a bump crossed at an angle is never such a band (the renderer's bumps lie across world
+x: after a turn the car meets them at 40-65 deg). Here every track of a calm pair is a sample of
+the ground at its own place, as much higher than the road as it moved faster than the smooth
+surface predicts: a point ``dz`` above the road at the same image position is nearer, and its
+flow is ``h / (h - dz)`` times the road's (``h`` the camera's height), so a flow excess ``e``
+is ``dz = h e / (1 + e)``, the point ``1 / (1 + e)`` of the way to where its ray meets the
+wheels' plane. The samples move with the vehicle (2D, with its yaw); each front wheel reads the
+samples in its own cell. Measured on rendered drives with the renderer's bumps under the true
+front wheels as the hinge's height (an oracle): bumps crossed at an angle 0.13-0.20 -> 0.04-0.12 %
+t_rel (docs/terrain.md, stop 41). Numpy only; no ROS.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ['RaisedGround', 'CELL_M']
+
+CELL_M = 0.25  # m: the cells samples are pooled in (a bump is 0.5-1.5 m long)
+# A cell is raised when its samples' mean flow excess is over _EXCESS (3 cm under a camera
+# 1.1 m up; 2 % read false heights past the bumps of rendered drives), from at least
+# _SAMPLES samples of at least _PAIRS pairs (one pair's error, e.g. the rear wheels starting
+# to climb at 10 Hz, read 2-3 cm under the front wheels 2-3 m past a bump).
+_EXCESS = 0.03
+_SAMPLES = 3
+_PAIRS = 2
+# Samples are taken this far ahead of the front axle (m): the ground that the wheels will
+# reach, seen before they are near it.
+AHEAD_OF_HINGE = 0.8
+_KEEP_BEHIND = 1.5  # m behind the front axle: the wheels have passed it, the samples go
+_KEY = 100000  # cell indices are offset by this to be positive in the cell keys
+
+
+@dataclass(frozen=True)
+class RaisedGround:
+    """Samples of the ground (x, y in base_link, m; their flow excess; the pair they came from)."""
+
+    xy: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
+    excess: np.ndarray = field(default_factory=lambda: np.empty(0))
+    pair: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
+    pairs: int = 0  # how many pairs gave samples so far
+
+    def seen(self, camera: np.ndarray, ground: np.ndarray, excess: np.ndarray,
+             hinge: float) -> RaisedGround:
+        """Self with one pair's samples added.
+
+        ``camera``: its position (3,) in base_link; ``ground``: (N, 2) where each track's ray
+        meets the wheels' plane; ``excess``: (N,) its flow over the smooth surface's, less one.
+        Only those ``AHEAD_OF_HINGE`` past the front axle (``hinge``, m) are kept.
+        """
+        shrink = 1.0 - np.clip(excess, 0.0, None) / (1.0 + np.clip(excess, 0.0, None))
+        xy = camera[:2] + (ground - camera[:2]) * shrink[:, None]
+        ahead = xy[:, 0] > hinge + AHEAD_OF_HINGE
+        return RaisedGround(np.concatenate([self.xy, xy[ahead]]),
+                            np.concatenate([self.excess, excess[ahead]]),
+                            np.concatenate([self.pair, np.full(np.count_nonzero(ahead),
+                                                               self.pairs)]),
+                            self.pairs + 1)
+
+    def moved(self, motion: np.ndarray, hinge: float) -> RaisedGround:
+        """Self in base_link after the planar ``motion`` (x, y, yaw); all of it when reversing."""
+        if motion[0] < 0.0:
+            return RaisedGround()
+        if not len(self.xy):
+            return self
+        c, s = np.cos(motion[2]), np.sin(motion[2])
+        d = self.xy - motion[:2]
+        xy = np.c_[c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]]
+        keep = xy[:, 0] > hinge - _KEEP_BEHIND
+        return RaisedGround(xy[keep], self.excess[keep], self.pair[keep], self.pairs)
+
+    def height_at(self, points: np.ndarray, camera_height: float) -> np.ndarray:
+        """How far (m) the ground at ``points`` (N, 2) is above the road: 0 where not raised."""
+        out = np.zeros(len(points))
+        if not len(self.xy):
+            return out
+        keys, inverse = np.unique(_keys(self.xy), return_inverse=True)
+        count = np.bincount(inverse)
+        mean = np.bincount(inverse, self.excess) / count
+        # Each (cell, pair) once: how many pairs saw the cell.
+        distinct = np.unique(inverse.astype(np.int64) * 1000003 + self.pair) // 1000003
+        pairs = np.bincount(distinct, minlength=len(keys))
+        wanted = _keys(points)
+        i = np.clip(np.searchsorted(keys, wanted), 0, len(keys) - 1)
+        found = (keys[i] == wanted) & (count[i] >= _SAMPLES) & (pairs[i] >= _PAIRS)
+        excess = np.where(found, mean[i], 0.0)
+        raised = excess > _EXCESS
+        out[raised] = camera_height * excess[raised] / (1.0 + excess[raised])
+        return out
+
+
+def _keys(xy: np.ndarray) -> np.ndarray:
+    """One integer per cell of ``xy`` (N, 2)."""
+    ix = np.floor(xy[:, 0] / CELL_M).astype(np.int64) + _KEY
+    iy = np.floor(xy[:, 1] / CELL_M).astype(np.int64) + _KEY
+    return ix * 2 * _KEY + iy
