@@ -659,6 +659,7 @@ class LocalGroundFilter:
                 'all' if np.isinf(self.used_reach) else f'{self.used_reach:.1f}'),
             'ground ahead irregular': str(self.irregular),
             'bumps ahead (m)': ', '.join(f'{x:.1f}' for x in self.bumps.ahead) or 'none',
+            'front wheels above the road ahead (cm)': f'{-100 * self._surface_hinge().height:.1f}',
             'road bends away beyond the lane': ', '.join(
                 side for side, drift in zip(('left', 'right'), self.side_drift)
                 if abs(drift) > _SIDE_SIGMAS) or 'neither side',
