@@ -220,6 +220,7 @@ class LocalGroundFilter:
         self.bumps = BumpsAhead()
         self.raised = RaisedGround()  # ground seen above the road, until the wheels pass it
         self._raised_seen: RaisedGround | None = None  # with the last pair's samples
+        self._under_cache: tuple | None = None  # (raised, hinge, the wheels' heights)
         self.history_reads = False  # the road's history has read the camera's tilt
         self.seen_tilt: np.ndarray | None = None  # its last reading, if believable
 
@@ -527,11 +528,24 @@ class LocalGroundFilter:
         """
         height = -self.bumps.front_height
         if not (self.bumps.at_front(self.hinge) or self.bumps.front_height > _KNOWN_HEIGHT):
-            wheels = np.array([[self.hinge, 0.5 * self.track], [self.hinge, -0.5 * self.track]])
-            under = self.raised.height_at(wheels, self.camera_height)
+            under = self._raised_under_wheels()
             if np.any(under > 0.0):
                 height = min(height, -float(np.mean(under)))
         return Hinge(self.hinge, self.track, height)
+
+    def _raised_under_wheels(self) -> np.ndarray:
+        """How far (m) the ground under the left and the right front wheel is raised (2,).
+
+        Read once per pair (the samples change only in advance()): the surface's hinge is asked
+        for several times a pair.
+        """
+        key = (self.hinge, self.track, self.camera_height)
+        cached = self._under_cache
+        if cached is None or cached[0] is not self.raised or cached[1] != key:
+            wheels = np.array([[self.hinge, 0.5 * self.track], [self.hinge, -0.5 * self.track]])
+            self._under_cache = (self.raised, key,
+                                 self.raised.height_at(wheels, self.camera_height))
+        return self._under_cache[2]
 
     def _samples_near(self, xs: np.ndarray) -> np.ndarray:
         """Which of the road history's samples ahead lie near a band or bump.

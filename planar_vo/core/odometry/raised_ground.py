@@ -79,15 +79,16 @@ class RaisedGround:
     def height_at(self, points: np.ndarray, camera_height: float) -> np.ndarray:
         """How far (m) the ground at ``points`` (N, 2) is above the road: 0 where not raised."""
         out = np.zeros(len(points))
-        if not len(self.xy):
-            return out
-        keys, inverse = np.unique(_keys(self.xy), return_inverse=True)
-        count = np.bincount(inverse)
-        mean = np.bincount(inverse, self.excess) / count
-        # Each (cell, pair) once: how many pairs saw the cell.
-        distinct = np.unique(inverse.astype(np.int64) * 1000003 + self.pair) // 1000003
-        pairs = np.bincount(distinct, minlength=len(keys))
         wanted = _keys(points)
+        near = np.isin(_keys(self.xy), wanted)  # only the samples in the cells asked about
+        if not near.any():
+            return out
+        keys, inverse = np.unique(_keys(self.xy[near]), return_inverse=True)
+        count = np.bincount(inverse)
+        mean = np.bincount(inverse, self.excess[near]) / count
+        # Each (cell, pair) once: how many pairs saw the cell.
+        distinct = np.unique(inverse.astype(np.int64) * 1000003 + self.pair[near]) // 1000003
+        pairs = np.bincount(distinct, minlength=len(keys))
         i = np.clip(np.searchsorted(keys, wanted), 0, len(keys) - 1)
         found = (keys[i] == wanted) & (count[i] >= _SAMPLES) & (pairs[i] >= _PAIRS)
         excess = np.where(found, mean[i], 0.0)
