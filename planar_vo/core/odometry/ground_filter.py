@@ -592,8 +592,9 @@ class LocalGroundFilter:
         rotation, surface, surface_cov, used, dt, focal_px, camera = self.last_fit
         self.bumps = self.bumps.moved(float(motion[0]), float(camera[0]))
         self.camera_height = float(camera[2])
-        seen, self._raised_seen = self._raised_seen or self.raised, None
-        self.raised = seen.moved(np.asarray(motion, dtype=float), self.hinge)
+        seen = self.raised if self._raised_seen is None else self._raised_seen
+        self.raised, self._raised_seen = seen.moved(np.asarray(motion, dtype=float),
+                                                    self.hinge), None
         self.last_fit = None
         self.profile = self.profile.with_pair(np.asarray(motion, dtype=float), rotation[:2],
                                               surface, surface_cov, used, self.hinge,
