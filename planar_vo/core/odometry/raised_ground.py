@@ -86,12 +86,12 @@ class RaisedGround:
             near |= cells == key
         if not near.any():
             return out
-        keys, inverse = np.unique(_keys(self.xy[near]), return_inverse=True)
+        keys, inverse = np.unique(cells[near], return_inverse=True)
         count = np.bincount(inverse)
         mean = np.bincount(inverse, self.excess[near]) / count
         # Each (cell, pair) once: how many pairs saw the cell.
-        distinct = np.unique(inverse.astype(np.int64) * 1000003 + self.pair[near]) // 1000003
-        pairs = np.bincount(distinct, minlength=len(keys))
+        seen_by = np.unique(np.c_[inverse, self.pair[near]], axis=0)[:, 0]
+        pairs = np.bincount(seen_by, minlength=len(keys))
         i = np.clip(np.searchsorted(keys, wanted), 0, len(keys) - 1)
         found = (keys[i] == wanted) & (count[i] >= _SAMPLES) & (pairs[i] >= _PAIRS)
         excess = np.where(found, mean[i], 0.0)
