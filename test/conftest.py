@@ -46,6 +46,13 @@ def observe(mounting, points_base):
     return p[:, :2] / p[:, 2:]
 
 
+def domain_id(block: int) -> str:
+    """A ROS_DOMAIN_ID for one group of DDS tests: within 1-101, the range whose ports stay
+    below Linux's ephemeral ones (ROS 2's "About Domain ID"), set by this run's pid so that two
+    runs on one machine seldom meet, and apart for each ``block`` (0-3) of this run."""
+    return str(1 + (os.getpid() + 25 * block) % 101)
+
+
 @pytest.fixture(scope='session')
 def colcon_install(tmp_path_factory):
     """A colcon workspace with this package built and installed (once per session).

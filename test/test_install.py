@@ -14,6 +14,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from test.conftest import domain_id
+
 EXECUTABLES = ('planar_vo_node', 'planar_vo_replay', 'planar_vo_synth', 'planar_vo_demo',
                'planar_vo_bench', 'planar_vo_paper_experiment', 'planar_vo_soak',
                'planar_vo_calibrate', 'planar_vo_mounting_experiment')
@@ -31,7 +33,7 @@ def run_sourced(workspace: Path, command: str, *, cwd: Path, timeout: float = 12
     env = {k: v for k, v in os.environ.items()
            if not k.startswith(('AMENT_', 'COLCON_', 'PYTHONPATH', 'VIRTUAL_ENV'))}
     env.update(PATH=_clean_path(), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               ROS_DOMAIN_ID=str(150 + os.getpid() % 50), PYTHONUNBUFFERED='1')
+               ROS_DOMAIN_ID=domain_id(3), PYTHONUNBUFFERED='1')
     env.pop('ROS_LOCALHOST_ONLY', None)
     script = f'source {workspace / "install" / "local_setup.bash"} && {command}'
     return subprocess.run(['bash', '-c', script], cwd=cwd, env=env, capture_output=True,

@@ -1,6 +1,5 @@
 """The node over real DDS at the bag's own rate gives the same odometry as the offline replay."""
 
-import os
 
 import numpy as np
 import pytest
@@ -8,13 +7,14 @@ import pytest
 from planar_vo.core.metrics import associate, metrics
 from planar_vo.tools.demo import PLAY_WINDOW
 from planar_vo.tools.live_session import BagStream, LiveSession
+from test.conftest import domain_id
 from test.test_node import CONFIG, DEFAULT_BAG
 
 
 @pytest.fixture
 def dds_env(monkeypatch):
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    monkeypatch.setenv('ROS_DOMAIN_ID', str(101 + os.getpid() % 100))
+    monkeypatch.setenv('ROS_DOMAIN_ID', domain_id(2))
     monkeypatch.setenv('ROS_PYTHON_CHECK_FIELDS', '1')
 
 
@@ -88,3 +88,26 @@ def test_a_node_that_dies_is_reported_at_once(dds_env):
             session.wait_for(stream.frames[0][0], 60.0)
     finally:
         session.close()
+
+
+def test_a_node_that_stops_answering_is_reported_not_waited_on(dds_env):
+    """The node stopped (SIGSTOP) after the handshake: the demo's player raises LiveError
+    after STALLED_AFTER unanswered frames instead of waiting each frame's settle time out
+    (a CI run waited 89 x 2 s on a player that could not hear the node)."""
+    import signal
+
+    from planar_vo.tools.errors import LiveError
+    from planar_vo.tools.live_session import STALLED_AFTER
+    stream = BagStream.read(DEFAULT_BAG, limit=STALLED_AFTER + 10)
+    session = LiveSession(CONFIG, image_type=stream.image_type)
+    try:
+        session.wait_connected()
+        session.handshake(stream.frames[0])
+        session.proc.send_signal(signal.SIGSTOP)
+        with pytest.raises(LiveError, match=f'no odometry for {STALLED_AFTER} frames'):
+            session.play(stream.frames[1:], rate=1000.0, settle=0.3, window=PLAY_WINDOW)
+        assert len(session.sent) == STALLED_AFTER + 1  # the handshake, then one per wait
+    finally:
+        session.proc.send_signal(signal.SIGCONT)
+        status = session.close()
+    assert status == 0

@@ -18,6 +18,8 @@ import pytest
 from planar_vo.core import config
 from planar_vo.core.metrics import associate, metrics
 from planar_vo.io import resources
+from planar_vo.ros.background import BackgroundSpin
+from test.conftest import domain_id
 
 CONFIG = resources.default_params()
 DEFAULT_BAG = resources.default_bag()
@@ -43,7 +45,7 @@ def ros_env():
     """LOCALHOST discovery, a per-run domain id, field checks: set before rclpy.init."""
     saved = dict(os.environ)
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-                      ROS_DOMAIN_ID=str(1 + os.getpid() % 100), ROS_PYTHON_CHECK_FIELDS='1',
+                      ROS_DOMAIN_ID=domain_id(0), ROS_PYTHON_CHECK_FIELDS='1',
                       PYTHONUNBUFFERED='1')
     os.environ.pop('ROS_LOCALHOST_ONLY', None)  # deprecated in Jazzy; do not let it interfere
     yield dict(os.environ)
@@ -73,8 +75,7 @@ class Ros:
         self.node = rclpy.create_node('planar_vo_test', context=self.ctx)
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
-        self.thread.start()
+        self.spin = BackgroundSpin(self.executor, self.node)
 
     def publisher(self, msg_type, topic, reliable=True):
         from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -98,10 +99,9 @@ class Ros:
 
     def close(self):
         import rclpy
-        self.executor.shutdown()
+        self.spin.stop()
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.ctx)
-        self.thread.join(5)
 
 
 @pytest.fixture(scope='module')

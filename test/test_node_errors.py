@@ -5,17 +5,18 @@ handed something that is not an Image, as a bug elsewhere might, and the node mu
 it as an error of its own (not as bad input) and keep working.
 """
 
-import os
-import threading
 import time
 
 import pytest
+
+from planar_vo.ros.background import BackgroundSpin
+from test.conftest import domain_id
 
 
 @pytest.fixture
 def in_process_node(monkeypatch):
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    monkeypatch.setenv('ROS_DOMAIN_ID', str(1 + (os.getpid() + 50) % 100))
+    monkeypatch.setenv('ROS_DOMAIN_ID', domain_id(1))
     monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
     import rclpy
     from rclpy.context import Context
@@ -29,14 +30,12 @@ def in_process_node(monkeypatch):
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(node)
     executor.add_node(listener)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
+    spin = BackgroundSpin(executor, listener)
     yield node, listener
-    executor.shutdown()
+    spin.stop()
     node.destroy_node()
     listener.destroy_node()
     rclpy.try_shutdown(context=ctx)
-    thread.join(5)
 
 
 def test_unexpected_exception_is_one_error_line_and_counted(in_process_node, capfd):

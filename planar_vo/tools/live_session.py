@@ -23,17 +23,25 @@ import numpy as np
 from planar_vo.io.bag import IMAGE_TYPES, INFO_TYPE, ODOM_TYPE, open_reader, read_messages
 from planar_vo.io.errors import BagError
 from planar_vo.io.resources import executable
+from planar_vo.ros.background import BackgroundSpin
 from planar_vo.ros.messages import planar_pose, stamp_to_seconds
 from planar_vo.tools.errors import LiveError
 
-__all__ = ['BagStream', 'LiveSession', 'local_dds_env']
+__all__ = ['BagStream', 'LiveSession', 'STALLED_AFTER', 'local_dds_env']
+
+# Frames in a row without an answer after which a player with a window gives up: one is
+# a frame dropped under load, this many a node that is stuck.
+STALLED_AFTER = 5
 
 
 def local_dds_env() -> dict[str, str]:
-    """Return the environment with DDS kept on loopback and a domain id of its own."""
+    """Return the environment with DDS kept on loopback and a domain id of its own.
+
+    The id is within 1-101, where DDS's ports stay below Linux's ephemeral range.
+    """
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     os.environ.pop('ROS_LOCALHOST_ONLY', None)  # deprecated in Jazzy; do not let it interfere
-    os.environ.setdefault('ROS_DOMAIN_ID', str(101 + os.getpid() % 100))
+    os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 101))
     return dict(os.environ)
 
 
@@ -120,10 +128,9 @@ class LiveSession:
         self._lock = threading.Lock()
         from nav_msgs.msg import Odometry
         self.node.create_subscription(Odometry, '/odom', self._on_odom, 100, raw=True)
-        self.executor = SingleThreadedExecutor(context=self.ctx)
-        self.executor.add_node(self.node)
-        self._spin = threading.Thread(target=self.executor.spin, daemon=True)
-        self._spin.start()
+        executor = SingleThreadedExecutor(context=self.ctx)
+        executor.add_node(self.node)
+        self._spin = BackgroundSpin(executor, self.node)
 
     def _on_odom(self, cdr: bytes) -> None:
         now = time.perf_counter()
@@ -191,13 +198,20 @@ class LiveSession:
         (each waited for up to ``settle`` s): on a loaded machine the player slows down
         instead of the node dropping the frames it cannot keep up with, so what is compared
         does not depend on the machine's load. None: the pace alone (what the node keeps up
-        with is then the measurement). Returns the seconds the playback took.
+        with is then the measurement). With a window, :data:`STALLED_AFTER` frames in a row
+        unanswered raise LiveError: the node is alive but stuck, and waiting on would only
+        hide it. Returns the seconds the playback took.
         """
         start = time.perf_counter()
         first = frames[0][0]
+        unanswered = 0  # frames in a row whose odometry did not come within ``settle``
         for i, frame in enumerate(frames):
             if window is not None and i >= window:
-                self.wait_for_any(frames[i - window][0], settle)
+                answered = self.wait_for_any(frames[i - window][0], settle)
+                unanswered = 0 if answered else unanswered + 1
+                if unanswered >= STALLED_AFTER:
+                    raise LiveError(f'planar_vo_node stopped answering: no odometry for '
+                                    f'{unanswered} frames in a row ({settle:g} s each)')
             due = start + ((frame[0] - first) if rate is None else i / rate)
             while time.perf_counter() < due:
                 time.sleep(min(0.001, max(due - time.perf_counter(), 0)))
@@ -246,7 +260,7 @@ class LiveSession:
     def close(self) -> int:
         """Stop the node like Ctrl-C; return its exit status."""
         import rclpy
-        self.executor.shutdown()
+        self._spin.stop()
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.ctx)
         if self.proc.poll() is None:
