@@ -53,6 +53,20 @@ def domain_id(block: int) -> str:
     return str(1 + (os.getpid() + 25 * block) % 101)
 
 
+@pytest.fixture
+def rclpy_context(monkeypatch):
+    """An rclpy Context of its own, on loopback DDS and this run's domain for in-process tests."""
+    import rclpy
+    from rclpy.context import Context
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    monkeypatch.setenv('ROS_DOMAIN_ID', domain_id(1))
+    monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
+    ctx = Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
 @pytest.fixture(scope='session')
 def colcon_install(tmp_path_factory):
     """A colcon workspace with this package built and installed (once per session).

@@ -3,38 +3,22 @@
 import threading
 import time
 
-import pytest
-
 from planar_vo.ros.background import BackgroundSpin
-from test.conftest import domain_id
 
 
-@pytest.fixture
-def context(monkeypatch):
-    import rclpy
-    from rclpy.context import Context
-    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    monkeypatch.setenv('ROS_DOMAIN_ID', domain_id(1))
-    monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
-    ctx = Context()
-    rclpy.init(context=ctx)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
-
-
-def test_stop_returns_after_the_thread_left_the_executor_while_messages_flow(context):
+def test_stop_returns_after_the_thread_left_the_executor_while_messages_flow(rclpy_context):
     """Stopped in the middle of a stream of messages, 20 times: each time the thread has
     ended when stop() returns, so destroying the node and the context cannot meet it inside
     a wait (executor.shutdown() alone does not wait for a thread in spin())."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from std_msgs.msg import String
-    node = rclpy.create_node('background_spin_test', context=context)
+    node = rclpy.create_node('background_spin_test', context=rclpy_context)
     got = []
     node.create_subscription(String, 'chatter', got.append, 10)
     pub = node.create_publisher(String, 'chatter', 10)
     for _ in range(20):
-        executor = SingleThreadedExecutor(context=context)
+        executor = SingleThreadedExecutor(context=rclpy_context)
         executor.add_node(node)
         spin = BackgroundSpin(executor, node)
         before, end = len(got), time.monotonic() + 30.0

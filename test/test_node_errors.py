@@ -10,24 +10,17 @@ import time
 import pytest
 
 from planar_vo.ros.background import BackgroundSpin
-from test.conftest import domain_id
 
 
 @pytest.fixture
-def in_process_node(monkeypatch):
-    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    monkeypatch.setenv('ROS_DOMAIN_ID', domain_id(1))
-    monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
+def in_process_node(rclpy_context):
     import rclpy
-    from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
 
     from planar_vo.ros.node import PlanarVoNode
-    ctx = Context()
-    rclpy.init(context=ctx)
-    node = PlanarVoNode(context=ctx)
-    listener = rclpy.create_node('diagnostics_listener', context=ctx)
-    executor = SingleThreadedExecutor(context=ctx)
+    node = PlanarVoNode(context=rclpy_context)
+    listener = rclpy.create_node('diagnostics_listener', context=rclpy_context)
+    executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
     executor.add_node(listener)
     spin = BackgroundSpin(executor, listener)
@@ -35,7 +28,6 @@ def in_process_node(monkeypatch):
     spin.stop()
     node.destroy_node()
     listener.destroy_node()
-    rclpy.try_shutdown(context=ctx)
 
 
 def test_unexpected_exception_is_one_error_line_and_counted(in_process_node, capfd):
