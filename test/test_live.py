@@ -1,6 +1,5 @@
 """The node over real DDS at the bag's own rate gives the same odometry as the offline replay."""
 
-
 import numpy as np
 import pytest
 

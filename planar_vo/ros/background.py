@@ -31,13 +31,15 @@ class BackgroundSpin:
         while not self._stopping.is_set() and context.ok():
             self.executor.spin_once()
 
-    def stop(self, timeout: float = 10.0) -> None:
+    def stop(self, timeout: float = 10.0) -> bool:
         """Wake the thread, wait for it to leave the executor, then shut the executor down.
 
-        Call before destroying the nodes or shutting the context down.
+        Call before destroying the nodes or shutting the context down. Returns whether the
+        thread had left within ``timeout`` s (a callback that never returns keeps it).
         """
         self._stopping.set()
         self._wake.trigger()
         self._thread.join(timeout)
         self.executor.shutdown()
         self._node.destroy_guard_condition(self._wake)
+        return not self._thread.is_alive()
