@@ -250,6 +250,11 @@ def report(result: ReplayResult) -> dict[str, Any]:
         out['mounting'] = {'seconds': learned.seconds, **{
             name: {'value': value, 'std': _finite_or_none(learned.std[name])}
             for name, value in learned.as_params().items()}}
+    readout = result.readout
+    if readout is not None and readout.pairs:  # the rolling-shutter readout was learned
+        out['rolling_shutter_readout'] = {'seconds': readout.seconds, 'pairs': readout.pairs,
+                                          'value': readout.readout,
+                                          'std': _finite_or_none(readout.std)}
     return out
 
 
@@ -317,6 +322,12 @@ def _print_summary(summary: dict[str, Any], args: argparse.Namespace) -> None:
             std = 'not determined' if item['std'] is None else f'+- {item["std"] * scale:.3f}'
             parts.append(f'{name} {item["value"] * scale:.3f} {unit} ({std})')
         print(f'self-calibrated mounting over {learned["seconds"]:.1f} s: ' + ', '.join(parts))
+    readout = summary.get('rolling_shutter_readout')
+    if readout:
+        std = ('not determined' if readout['std'] is None
+               else f'+- {1e3 * readout["std"]:.1f} ms')
+        print(f'rolling-shutter readout learned over {readout["seconds"]:.1f} s: '
+              f'{1e3 * readout["value"]:.1f} ms ({std})')
     if args.output:
         print(f'odometry written to {args.output}')
     if args.plot:

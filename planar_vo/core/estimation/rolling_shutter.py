@@ -21,8 +21,10 @@ each track's two observations are first moved to where they would be at their fr
 (:func:`at_stamp`), the vehicle carried on by the 3-DoF motion over the row's time offset.
 
 The readout is learned from the drive (:class:`ReadoutCalibrator`): each estimated pair
-gives one Gauss-Newton step in (motion, T, camera tilt) from the working readout, whose T and
-variance (the rest marginalised) are averaged over the drive. The shear the readout makes
+gives one Gauss-Newton step from the working readout, in (motion, T, camera tilt) through the
+plane (:func:`readout_measurement`) or in (motion, body rotation, the road's grade and
+cross-slope, T) through the local ground (:func:`readout_on_surface`), whose T and variance
+(the rest marginalised) are averaged over the drive. The shear the readout makes
 grows with how far tracks move between rows: forward speed moves the near ground down the
 image, turns move it across.
 
@@ -32,6 +34,7 @@ Numpy only; no ROS.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,7 +45,8 @@ from planar_vo.core.geometry.camera import rays_through
 from planar_vo.core.geometry.se2 import mean_twist, power
 
 __all__ = ['STAMP_FRACTION', 'ShutterModel', 'ReadoutEstimate', 'ReadoutCalibrator',
-           'at_stamp', 'accelerated', 'carry', 'readout_measurement', 'readout_advice']
+           'at_stamp', 'accelerated', 'carry', 'readout_measurement', 'readout_on_surface',
+           'readout_advice']
 
 #: The stamp's place in the readout: the fraction c of the readout before it.
 STAMP_FRACTION = {'start': 0.0, 'middle': 0.5, 'end': 1.0}
@@ -241,6 +245,46 @@ def readout_measurement(motion: np.ndarray, p1: np.ndarray, m2: np.ndarray,
     if not (math.isfinite(variance) and variance > 0):
         return None
     return T + float(step[3]), variance
+
+
+def readout_on_surface(residuals: Callable[[float], tuple[np.ndarray, np.ndarray, np.ndarray]],
+                       readout: float, step: float = 1e-3) -> tuple[float, float] | None:
+    """One pair's readout (s) and its variance, through the local ground's refinement.
+
+    ``residuals(T)``: the refinement's weighted residuals at its solution with the tracks
+    moved to their stamps by a readout ``T``: (2, N), the Jacobian (K, 2, N) of the K
+    parameters marginalised and the weights (N,). One Gauss-Newton step in (the K
+    parameters, T) from ``readout``, T's derivative by central differences. Through the
+    plane under the wheels with the camera's tilt free (:func:`readout_measurement`) a sprung
+    body's roll and pitch and the road's grades read as readout (a rendered sprung car: 22.5
+    ms for 33 from a global shutter, never known to 1 ms); the body's rotation and the
+    surface's grade and cross-slope are marginalised here (the same car: 33.8 ms). None when
+    the pair says nothing (too few tracks).
+    """
+    r, J, weights = residuals(readout)
+    ahead, behind = residuals(readout + step)[0], residuals(readout - step)[0]
+    used = (weights > 0.0) & np.all(np.isfinite(ahead) & np.isfinite(behind), axis=0)
+    n = int(np.count_nonzero(used))
+    k = len(J) + 1
+    if n < 2 * k:
+        return None
+    column = (ahead[:, used] - behind[:, used]) / (2.0 * step)
+    J_all = np.concatenate([J[:, :, used], column[None]]).reshape(k, -1)
+    w = np.tile(weights[used], 2)
+    residual = r[:, used].reshape(-1)
+    H = (J_all * w) @ J_all.T
+    if not np.all(np.isfinite(H)) or np.linalg.cond(H) > 1e14:
+        return None
+    H_inv = np.linalg.inv(H)
+    delta = -H_inv @ ((J_all * w) @ residual)
+    # The noise from the residuals before the step: a pair far from the readout in use (its
+    # shear unexplained) weighs less, and its one step is the least linear (after the step:
+    # seven rendered rolling-shutter drives 2.10 -> 2.36 % t_rel in sum).
+    sigma2 = float(residual * w @ residual) / max(2 * n - k, 1)
+    variance = float(H_inv[-1, -1]) * sigma2
+    if not (math.isfinite(variance) and variance > 0):
+        return None
+    return readout + float(delta[-1]), variance
 
 
 @dataclass(frozen=True)

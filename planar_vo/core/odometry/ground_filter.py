@@ -25,6 +25,7 @@ from planar_vo.core.estimation.local_ground import (
     LocalGroundResult,
     ray_coefficients,
     refine_on_local_ground,
+    surface_residuals,
 )
 from planar_vo.core.estimation.ransac import RansacResult, TransferModel
 from planar_vo.core.geometry.camera import Mounting
@@ -221,6 +222,7 @@ class LocalGroundFilter:
         self.profile = RoadProfile.empty()
         self.body = np.zeros(2)  # (roll, pitch) of the camera to its wheels, beyond the static
         self.last_fit: tuple | None = None  # what the last refinement saw, for advance()
+        self.solution: tuple | None = None  # the last pair's (params, camera, hinge, weights)
         self.wheel_lift = 0.0  # m: how far the last pair's jolt lifted a wheel off the road
         self.bumps = BumpsAhead()
         self.raised = RaisedGround()  # ground seen above the road, until the wheels pass it
@@ -291,6 +293,7 @@ class LocalGroundFilter:
         """
         dt = max(dt, 1e-3)
         camera = self.tilted(mounting)
+        hinge = self._surface_hinge()
         travel = float(np.hypot(est.motion[0], est.motion[1]))
         step = np.maximum(_SURFACE_PER_METRE * travel, _SURFACE_FLOOR)
         prior = GroundPrior(np.diag(self.rate2 * dt * dt), self.surface,
@@ -341,6 +344,8 @@ class LocalGroundFilter:
         used = self.tilt_offset + self.body
         self.last_fit = (fit.measured_rotation, fit.surface, fit.surface_cov, used, dt,
                          model.focal_px, camera.position)
+        self.solution = (np.concatenate([fit.motion, fit.rotation, fit.surface]), camera, hinge,
+                         fit.weights)
         if self.self_calibrate:
             # Its slip fit takes many steps: their errors are correlated.
             slip_cov = correlated_covariance(fit.covariance, dt)
@@ -349,6 +354,23 @@ class LocalGroundFilter:
             motion_cov = motion_cov + applied
         return RansacResult(fit.motion, motion_cov, fit.inliers, est.hypotheses,
                             fit.rms_px), calibrated
+
+    def residuals_without_curvature(self, rays1: np.ndarray, m2: np.ndarray,
+                                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The last pair's residuals (2, N) over its surface made flat, Jacobian, weights (N,).
+
+        At the last refinement's motion, rotation, grade and cross-slope with the surface's
+        curvatures and twist set to none, for the tracks it refined seen as ``rays1`` (N, 3)
+        and ``m2`` (N, 2) (moved to their stamps with another readout); the Jacobian (8, 2, N)
+        is over those 8. An unmodelled readout's shear bends the surface the pair fits (its
+        curvatures take it up, whatever the readout): through them a pair says nothing
+        of the readout, through a flat one it does (see readout_on_surface).
+        """
+        params, camera, hinge, weights = self.solution
+        flat = np.concatenate([params[:8], np.zeros(len(params) - 8)])
+        v1 = np.ascontiguousarray((rays1 @ camera.base_from_optical.T).T)
+        r, J, front = surface_residuals(flat, v1, np.ascontiguousarray(m2.T), camera, hinge)
+        return r, J[:8], np.where(front, weights, 0.0)
 
     def _left_out(self, camera: Mounting, v1: np.ndarray, distance: np.ndarray,
                   keep: int) -> tuple[np.ndarray, np.ndarray]:
@@ -601,7 +623,7 @@ class LocalGroundFilter:
         seen = self.raised if self._raised_seen is None else self._raised_seen
         self.raised, self._raised_seen = seen.moved(np.asarray(motion, dtype=float),
                                                     self.hinge), None
-        self.last_fit = None
+        self.last_fit = self.solution = None
         self.profile = self.profile.with_pair(np.asarray(motion, dtype=float), rotation[:2],
                                               surface, surface_cov, used, self.hinge,
                                               self.rough_ahead)

@@ -41,6 +41,7 @@ from planar_vo.core.estimation.rolling_shutter import (
     at_stamp,
     readout_advice,
     readout_measurement,
+    readout_on_surface,
 )
 from planar_vo.core.frontend.ground_frontend import GroundFrontEnd
 from planar_vo.core.frontend.tracker import Tracker
@@ -525,14 +526,21 @@ class VisualOdometry:
                 reference_image, self.tracker.reference[rows].copy(),
                 self.tracker.reference_normalized[rows].copy(), previous), stamp)
             return self._hold_still(stamp, t0, previous, est, stats)
+        if self.readout_calibrator is not None:  # before the surface is moved on
+            tilt = self._tilt_filter
+            if isinstance(tilt, LocalGroundFilter) and tilt.solution is not None:  # refined
+                self._learn_readout_on_surface(
+                    est.motion, ((p1[ok], p2[ok]), (ref_px[ok, 1], cur_px[ok, 1]), dt, model,
+                                 self._twist_rate()))
+            else:
+                self._learn_readout(planar, p1_ok, m2[ok], ref_px[ok, 1], cur_px[ok, 1], dt,
+                                    model)
         self.integrator.add(start, stamp - start, step, est.covariance)
         if self.ground is not None:
             self.ground.advance(est.motion)
         self._ref_stamp = stamp
         # Tracks far off the motion are obstacles or mismatches: free their grid cells.
         errors = transfer_errors(est.motion, p1_ok, m2[ok], model, stretch)
-        if self.readout_calibrator is not None:
-            self._learn_readout(planar, p1_ok, m2[ok], ref_px[ok, 1], cur_px[ok, 1], dt, model)
         drop = idx[ok][errors > _OUTLIER_DROP * self.inlier_threshold]
         if est.motion[0] < 0.0:
             # Reversing, the image's tracks drift above the horizon margin, never to be used
@@ -562,25 +570,28 @@ class VisualOdometry:
 
     def _at_stamps(self, motion: np.ndarray, points: tuple[np.ndarray, np.ndarray],
                    rows: tuple[np.ndarray, np.ndarray], dt: float, model: TransferModel,
-                   rate: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   rate: np.ndarray | None = None, shutter: ShutterModel | None = None,
+                   ) -> tuple[np.ndarray, np.ndarray]:
         """(frame-1 rays, frame-2 normalized points) as a global shutter at the stamps saw them.
 
         ``points``: the tracks' ground points in both frames; ``rows``: their pixel rows;
-        ``rate``: the twist's rate of change over the pair (None: constant).
+        ``rate``: the twist's rate of change over the pair (None: constant); ``shutter``:
+        the readout to take (None: the one in use).
         """
         if isinstance(self._tilt_filter, LocalGroundFilter):  # the road ahead is not flat
             points = [self._tilt_filter.on_surface(p, model.mounting.position) for p in points]
         else:
             points = [(p, None) for p in points]
         m1, m2 = (at_stamp(p, tau, motion, dt, model, rate, centre, height)
-                  for (p, height), tau, centre in zip(points, self._row_times(*rows),
+                  for (p, height), tau, centre in zip(points, self._row_times(*rows, shutter),
                                                       (-dt / 2, dt / 2)))
         return rays_through(m1), m2
 
-    def _row_times(self, v1: np.ndarray, v2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _row_times(self, v1: np.ndarray, v2: np.ndarray, shutter: ShutterModel | None = None,
+                   ) -> tuple[np.ndarray, np.ndarray]:
         """Each track's rows' times relative to their frames' stamps, s."""
-        height = self.camera.height
-        return self.shutter.row_time(v1, height), self.shutter.row_time(v2, height)
+        shutter, height = shutter or self.shutter, self.camera.height
+        return shutter.row_time(v1, height), shutter.row_time(v2, height)
 
     def _twist_rate(self) -> np.ndarray | None:
         """The twist's rate of change (3,) over the last two pairs if they end at the reference."""
@@ -644,12 +655,33 @@ class VisualOdometry:
                                        self.shutter, model, est.inliers)
         if measured is None:
             return
+        self._add_readout(*measured, dt)
+
+    def _add_readout(self, readout: float, variance: float, dt: float) -> None:
+        """Average in one pair's readout; use the learned readout once known."""
         calibrator = copy.copy(self.readout_calibrator)  # replaced, never changed in place
-        calibrator.add(*measured, dt)
+        calibrator.add(readout, variance, dt)
         self.readout_calibrator = calibrator
         usable = calibrator.usable()
         if usable is not None:
             self.shutter = ShutterModel(usable, self.shutter.stamp)
+
+    def _learn_readout_on_surface(self, motion: np.ndarray, deskew: tuple) -> None:
+        """Add this pair's readout measured through the local ground (see readout_on_surface).
+
+        ``deskew``: the ``points, rows, dt, model, rate`` of :meth:`_at_stamps`.
+        """
+        stamp_kind = self.shutter.stamp
+
+        def residuals(readout: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            shutter = ShutterModel(readout, stamp_kind)
+            return self._tilt_filter.residuals_without_curvature(
+                *self._at_stamps(motion, *deskew, shutter=shutter))
+
+        measured = readout_on_surface(residuals, self.shutter.readout)
+        if measured is None:
+            return
+        self._add_readout(*measured, deskew[2])
 
     def _require_inliers(self, inliers: np.ndarray) -> None:
         """Raise PoseEstimationError when fewer than ``min_inliers`` fit."""
