@@ -192,7 +192,9 @@ SCHEMA: tuple[Param, ...] = (
           '(turns and speed tell it), starting from the configured value: reported with its '
           'standard deviation in /diagnostics, a warning once when it differs from the '
           'configured value by over 2 ms, and used once known to 1 ms; until then the '
-          'mounting\'s self-calibration waits (an unmodelled readout looks like a grade).'),
+          'mounting\'s self-calibration waits (an unmodelled readout looks like a grade). '
+          'For a rolling-shutter camera only: a global shutter on rough road learns 1-15 ms '
+          'that are not there.'),
     Param('max_frame_gap', 1.0, 'A larger gap between image stamps, or one backwards, restarts '
           'tracking (the pose is kept, its covariance inflated), s.', 0.01, 3600.0),
 )
