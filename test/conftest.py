@@ -167,7 +167,7 @@ def rendered(scenario, frames, seed=0, **kw):
 
 def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, camera=None,
                  suspension=None, mounting=None, configured=None, exposure=0.0, rate=30.0,
-                 twist=False, supersample=1, rolling_shutter=None):
+                 twist=False, supersample=1, rolling_shutter=None, keep=None):
     """Render a synthetic scenario and run the odometry core on it (no bag, no ROS).
 
     The images are rendered with ``mounting`` (default: the scenario's) on ``suspension``
@@ -180,6 +180,7 @@ def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, came
     ``synth.render_scenario`` with the same arguments gives the trajectory with the true camera
     pose of every frame. Returns (results, ground truth poses (N, 3)), and with ``twist``
     also the renderer's instantaneous body twist (vx, vy, yaw rate) at each stamp (N, 3).
+    ``keep``: a list the VisualOdometry is appended to, to look at it after the drive.
     """
     from planar_vo import synth
     from planar_vo.core import config
@@ -194,6 +195,8 @@ def run_scenario(scenario, frames, *, seed=0, overrides=None, corrupt=None, came
     mount = configured
     params = config.validate({**config.mounting_params(mount), **(overrides or {})})
     vo = VisualOdometry.from_params(synth_camera_model(drawn), params)
+    if keep is not None:
+        keep.append(vo)
     results = []
     for k in range(frames):
         image = drawn.images[k]

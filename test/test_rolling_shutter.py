@@ -17,6 +17,7 @@ from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry.ground_filter import LocalGroundFilter
 from planar_vo.io import resources
 from planar_vo.synth.shutter import RollingShutter, RowPoses
+from planar_vo.tools import replay
 
 from .conftest import move_points, observe, run_scenario
 
@@ -263,16 +264,19 @@ DRIVES = [('default', 30.0, 0.020, 150, False), ('tight', 20.0, 0.033, 200, Fals
 def test_a_rolling_shutter_drive_is_as_accurate_as_a_global_shutter(scenario, rate, readout,
                                                                      frames, sprung):
     camera = synth.SynthCamera.scaled(376, 240)
-    runs = {}
+    runs, kept = {}, []
     for name, shutter, over in (('global', None, {}),
-                                ('plain', RollingShutter(readout), {}),
+                                ('plain', RollingShutter(readout),
+                                 {'detect_rolling_shutter': False}),
                                 ('model', RollingShutter(readout),
                                  {'rolling_shutter_readout': readout})):
         results, truth = run_scenario(scenario, frames, rate=rate, camera=camera,
                                       suspension=None if sprung else synth.RIGID,
-                                      overrides=over, rolling_shutter=shutter)
+                                      overrides=over, rolling_shutter=shutter, keep=kept)
         assert all(r.status in ('first', 'ok') for r in results), name
         runs[name] = metrics(np.array([r.pose for r in results]), truth)
+    # The global shutter, watched with the shipped defaults, was not taken for a rolling one.
+    assert kept[0].readout_calibrator is None and kept[0].shutter.global_shutter
     ours, gs, plain = runs['model'], runs['global'], runs['plain']
     assert ours['t_rel_percent'] < 1.5 * gs['t_rel_percent'], runs
     assert abs(ours['scale_ratio'] - 1) < 0.002, runs
@@ -304,7 +308,6 @@ def test_the_readout_is_learned_from_a_drive_with_turns(sprung_rolling_shutter_d
     t_rel 5.887 %."""
     from planar_vo.core.odometry import VisualOdometry
     from planar_vo.io.bag import open_reader
-    from planar_vo.tools import replay
 
     from .conftest import synth_camera_model
     bag, _, result = sprung_rolling_shutter_drive
@@ -336,6 +339,23 @@ def test_the_readout_is_learned_from_a_drive_with_turns(sprung_rolling_shutter_d
     assert 'estimated' in ' '.join(values)
     assert vo.diagnostics()['shutter'].startswith(
         f'rolling shutter, readout {1e3 * learned.readout:.2f} ms')
+
+
+def test_a_rolling_shutter_is_found_with_the_shipped_defaults(sprung_rolling_shutter_drive):
+    """sprung_rolling_shutter_drive replayed as a user runs it: a global shutter configured
+    (the default), only the mounting set. The watch finds the rolling shutter and learns its
+    readout; the drive before it was found stays as far off as it was.
+    Measured: found after 40 pairs, 31.5 ms, t_rel 0.808 % (detect_rolling_shutter off:
+    7.91 %)."""
+    _, _, result = sprung_rolling_shutter_drive
+    bag = sprung_rolling_shutter_drive[0]
+    params = {**config.defaults(), **config.mounting_params(result.mounting)}
+    found = replay.report(replay.replay(bag, params))
+    assert abs(found['rolling_shutter_readout']['value'] - 0.03) < 0.003, found
+    assert found['accuracy']['t_rel_percent'] < 1.6, found
+    plain = replay.report(replay.replay(bag, {**params, 'detect_rolling_shutter': False}))
+    assert 'rolling_shutter_readout' not in plain
+    assert plain['accuracy']['t_rel_percent'] > 4 * found['accuracy']['t_rel_percent'], plain
 
 
 def test_calibrate_learns_the_readout(sprung_rolling_shutter_drive, tmp_path):

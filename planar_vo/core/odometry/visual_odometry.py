@@ -37,6 +37,7 @@ from planar_vo.core.estimation.rolling_shutter import (
     ReadoutCalibrator,
     ReadoutEstimate,
     ShutterModel,
+    ShutterWatch,
     accelerated,
     at_stamp,
     readout_advice,
@@ -90,6 +91,7 @@ class VisualOdometry:
         rolling_shutter_readout: float = 0.0,
         rolling_shutter_stamp: str = 'middle',
         learn_rolling_shutter: bool = False,
+        detect_rolling_shutter: bool = True,
     ) -> None:
         # The defaults are the parameter schema's (a test holds them to it).
         self.front = GroundFrontEnd(
@@ -116,6 +118,10 @@ class VisualOdometry:
         self.shutter = self.configured_shutter
         self.readout_calibrator = (ReadoutCalibrator(rolling_shutter_readout)
                                    if learn_rolling_shutter else None)
+        # A global shutter configured, on the local ground: watched for a rolling one.
+        self.shutter_watch = (ShutterWatch() if detect_rolling_shutter and ground is not None
+                              and not learn_rolling_shutter and rolling_shutter_readout == 0.0
+                              else None)
         self._update_geometry(camera, mounting, check_round_trip=True)
         self.reset()
 
@@ -143,7 +149,8 @@ class VisualOdometry:
             klt_first_search=params['klt_first_search'],
             rolling_shutter_readout=params['rolling_shutter_readout'],
             rolling_shutter_stamp=params['rolling_shutter_stamp'],
-            learn_rolling_shutter=params['learn_rolling_shutter'])
+            learn_rolling_shutter=params['learn_rolling_shutter'],
+            detect_rolling_shutter=params['detect_rolling_shutter'])
 
     # ---------------------------------------------------------------- state, read by adapters
     @property
@@ -526,15 +533,18 @@ class VisualOdometry:
                 reference_image, self.tracker.reference[rows].copy(),
                 self.tracker.reference_normalized[rows].copy(), previous), stamp)
             return self._hold_still(stamp, t0, previous, est, stats)
-        if self.readout_calibrator is not None:  # before the surface is moved on
-            tilt = self._tilt_filter
-            if isinstance(tilt, LocalGroundFilter) and tilt.solution is not None:  # refined
-                self._learn_readout_on_surface(
-                    est.motion, ((p1[ok], p2[ok]), (ref_px[ok, 1], cur_px[ok, 1]), dt, model,
-                                 self._twist_rate()))
+        tilt = self._tilt_filter  # the readout learned or watched for, before it moves on
+        refined = isinstance(tilt, LocalGroundFilter) and tilt.solution is not None
+        deskew = ((p1[ok], p2[ok]), (ref_px[ok, 1], cur_px[ok, 1]), dt, model,
+                  self._twist_rate())
+        if self.readout_calibrator is not None:
+            if refined:
+                self._learn_readout_on_surface(est.motion, deskew)
             else:
                 self._learn_readout(planar, p1_ok, m2[ok], ref_px[ok, 1], cur_px[ok, 1], dt,
                                     model)
+        elif self.shutter_watch is not None and refined:
+            self._watch_shutter(planar, est.motion, p1_ok, m2[ok], deskew)
         self.integrator.add(start, stamp - start, step, est.covariance)
         if self.ground is not None:
             self.ground.advance(est.motion)
@@ -671,6 +681,14 @@ class VisualOdometry:
 
         ``deskew``: the ``points, rows, dt, model, rate`` of :meth:`_at_stamps`.
         """
+        measured = self._readout_on_surface(motion, deskew)
+        if measured is None:
+            return
+        self._add_readout(*measured, deskew[2])
+
+    def _readout_on_surface(self, motion: np.ndarray,
+                            deskew: tuple) -> tuple[float, float] | None:
+        """The pair's readout and its variance through the local ground, from the one in use."""
         stamp_kind = self.shutter.stamp
 
         def residuals(readout: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -678,10 +696,36 @@ class VisualOdometry:
             return self._tilt_filter.residuals_without_curvature(
                 *self._at_stamps(motion, *deskew, shutter=shutter))
 
-        measured = readout_on_surface(residuals, self.shutter.readout)
-        if measured is None:
+        return readout_on_surface(residuals, self.shutter.readout)
+
+    def _watch_shutter(self, planar: RansacResult, motion: np.ndarray, p1: np.ndarray,
+                       m2: np.ndarray, deskew: tuple) -> None:
+        """Add this pair's two readings to the watch; learn the readout once it is found.
+
+        From then on as with learn_rolling_shutter, from the readings through the local
+        ground so far (see ShutterWatch).
+        """
+        (v1, v2), dt, model = deskew[1], deskew[2], deskew[3]
+        plane = readout_measurement(planar.motion, p1, m2, (v1, v2, self.camera.height, dt),
+                                    self.shutter, model, planar.inliers)
+        surface = self._readout_on_surface(motion, deskew)
+        if plane is None or surface is None:
             return
-        self._add_readout(*measured, deskew[2])
+        watch = self.shutter_watch.add(plane, surface, dt)
+        if watch.ruled_out():
+            self.shutter_watch = None
+            return
+        if not watch.found():
+            self.shutter_watch = watch
+            return
+        self.shutter_watch = None
+        self.readout_calibrator = watch.surface
+        usable = watch.surface.usable()
+        if usable is not None:
+            self.shutter = ShutterModel(usable, self.shutter.stamp)
+        # What self-calibration learned so far, it learned through the shear: it starts over.
+        self._tilt_filter.calibrator = MountingCalibrator(self.configured_mounting)
+        self._use_mounting(self.configured_mounting)
 
     def _require_inliers(self, inliers: np.ndarray) -> None:
         """Raise PoseEstimationError when fewer than ``min_inliers`` fit."""
