@@ -345,17 +345,14 @@ def test_a_rolling_shutter_is_found_with_the_shipped_defaults(sprung_rolling_shu
     """sprung_rolling_shutter_drive replayed as a user runs it: a global shutter configured
     (the default), only the mounting set. The watch finds the rolling shutter and learns its
     readout; the drive before it was found stays as far off as it was.
-    Measured: found after 40 pairs, 31.5 ms, t_rel 0.808 % (detect_rolling_shutter off:
-    7.91 %)."""
+    Measured: found after 40 pairs, 31.5 ms, t_rel 0.808 % (detect_rolling_shutter off, as
+    before stop 43: 7.91 %)."""
     _, _, result = sprung_rolling_shutter_drive
     bag = sprung_rolling_shutter_drive[0]
     params = {**config.defaults(), **config.mounting_params(result.mounting)}
     found = replay.report(replay.replay(bag, params))
     assert abs(found['rolling_shutter_readout']['value'] - 0.03) < 0.003, found
     assert found['accuracy']['t_rel_percent'] < 1.6, found
-    plain = replay.report(replay.replay(bag, {**params, 'detect_rolling_shutter': False}))
-    assert 'rolling_shutter_readout' not in plain
-    assert plain['accuracy']['t_rel_percent'] > 4 * found['accuracy']['t_rel_percent'], plain
 
 
 def test_calibrate_learns_the_readout(sprung_rolling_shutter_drive, tmp_path):
