@@ -535,16 +535,17 @@ class VisualOdometry:
             return self._hold_still(stamp, t0, previous, est, stats)
         tilt = self._tilt_filter  # the readout learned or watched for, before it moves on
         refined = isinstance(tilt, LocalGroundFilter) and tilt.solution is not None
-        deskew = ((p1[ok], p2[ok]), (ref_px[ok, 1], cur_px[ok, 1]), dt, model,
-                  self._twist_rate())
-        if self.readout_calibrator is not None:
-            if refined:
+        watched = self.shutter_watch is not None and refined
+        if self.readout_calibrator is not None or watched:
+            deskew = ((p1[ok], p2[ok]), (ref_px[ok, 1], cur_px[ok, 1]), dt, model,
+                      self._twist_rate())
+            if self.readout_calibrator is None:
+                self._watch_shutter(planar, est.motion, p1_ok, m2[ok], deskew)
+            elif refined:
                 self._learn_readout_on_surface(est.motion, deskew)
             else:
                 self._learn_readout(planar, p1_ok, m2[ok], ref_px[ok, 1], cur_px[ok, 1], dt,
                                     model)
-        elif self.shutter_watch is not None and refined:
-            self._watch_shutter(planar, est.motion, p1_ok, m2[ok], deskew)
         self.integrator.add(start, stamp - start, step, est.covariance)
         if self.ground is not None:
             self.ground.advance(est.motion)
