@@ -355,7 +355,7 @@ class ShutterWatch:
     is found once both are over :data:`_FOUND_READOUT` by :data:`_FOUND_SIGMAS` standard
     deviations, from :data:`_FOUND_PAIRS` pairs on (on 19 rendered global-shutter drives that
     bound, the lower of the two, reached at most 4.8 ms; the 7 rolling shutters were found
-    after 40-49 pairs); a global shutter once either is under it by as much.
+    after 40-73 pairs); a global shutter once either is under it by as much (40-55).
     Replaced, never changed in place.
     """
 
