@@ -94,6 +94,14 @@ _CALM_CURVATURE = 0.01
 _TERRAIN_CORRELATION_S = 3.0
 _SHRINK_SIGMAS = 3.0
 _HISTORY_TRAVEL = 0.01  # m: a pair this far forward gives the history's reading
+# The road ahead is read as the camera's tilt only after this much travel (m) in which the
+# history could not read it: a car's camera sees past its front wheels and its history reads
+# within 2-3 m, sooner than the road ahead averages out. Read from the start, a drive that
+# began over a crest (-2.7 % ahead of the wheels, curvature -0.008 /m, calm by the test
+# below) took -1.26 deg of pitch from four pairs, three steps 3 % long before the history
+# corrected it (stop 44: 20 drives 5.570 -> 5.379 in sum, that drive 0.225 -> 0.196 %; the
+# mounting 1 deg off 0.058 -> 0.068; 3 m and 10 m the same).
+_UNREAD_TRAVEL = 5.0
 # Bumps are looked for (bands_of) once the rates are learned, on pairs driving forward
 # without a lift, over a surface whose curvatures are under this (1/m). With the surface through
 # the centre line, looking at 0.01 /m found bands of hills for bumps (all four 0.18 -> 0.28 %);
@@ -229,6 +237,7 @@ class LocalGroundFilter:
         self._raised_seen: RaisedGround | None = None  # with the last pair's samples
         self._under_cache: tuple | None = None  # (raised, hinge, the wheels' heights)
         self.history_reads = False  # the road's history has read the camera's tilt
+        self.travel_unread = 0.0  # m driven since the restart while the history could not read
         self.seen_tilt: np.ndarray | None = None  # its last reading, if believable
 
     @property
@@ -499,12 +508,15 @@ class LocalGroundFilter:
         the grade ahead is not in it (read from the road ahead, a hill's trough at the start
         of a drive passed for a 1.7 deg pitch offset; over 42 rendered drives t_rel summed
         7.04 -> 6.18 %, a hills drive 0.29 -> 0.082 %, the mount 1 deg off 0.106 -> 0.045 %).
-        Before that (and for a robot whose wheels stand where the camera cannot see, where it
-        never can), the surface ahead on calm pairs. None: the pair says nothing about it.
+        Where it has not read after _UNREAD_TRAVEL m (a robot whose wheels stand where the
+        camera cannot see, where it never can), the surface ahead on calm pairs. None: the
+        pair says nothing about it.
         """
         if self.history_reads:
             forward = fit.motion[0] > _HISTORY_TRAVEL
             return self.seen_tilt if forward and not self.irregular else None
+        if self.travel_unread < _UNREAD_TRAVEL:
+            return None
         # Calm for sure: two sigmas of the curvatures inside the bound (a fit on the near
         # tracks alone, in a hill's trough, passed 0.0097 /m for calm and set a 0.57 deg pitch).
         spread = 2.0 * np.sqrt(np.diag(fit.surface_cov)[2:])
@@ -629,6 +641,8 @@ class LocalGroundFilter:
                                               self.rough_ahead)
         seen = self.profile.camera_tilt(self.hinge, _HALF_TRACK)
         self.history_reads = self.history_reads or seen is not None
+        if not self.history_reads:
+            self.travel_unread += abs(float(motion[0]))
         self.seen_tilt = None if seen is None or self.wheel_lift > _IRREGULAR_LIFT else seen[0]
         if self.wheel_lift > _IRREGULAR_LIFT:
             # A wheel on a bump tilts the wheels, not the body: the tilt to the road's chord
