@@ -116,6 +116,17 @@ _BUMP_CURVATURE = 0.01
 _RAISED_CURVATURE = 0.02
 # m: the front wheels' height on a bump that counts as known (from a band, or to sample under)
 _KNOWN_HEIGHT = 0.005
+# A front wheel coming down off a bump: at the pair's first frame it stood on the bump, so the
+# road past the front axle lay below the wheels' plane by its height, which the raised ground
+# or a band gives only where they saw the bump (a bump crossed at an angle, one wheel on it:
+# none of its 37 mm known, the step 15.7 mm short). The pair's own rotation tells it: its
+# pitch beyond the road's curve (nose down) times the hinge is the drop, when the pair lifted
+# a wheel and base_link did not rise with it (a rear wheel climbing pitches the same way and
+# lifts base_link by _DROP_RISE_SHARE of it or more). When the drop is over the known height by
+# _DROP_MARGIN (m) the pair is refitted with the front wheels that high. Stop 44, per pair on
+# three all-four sprung drives: the steps of front descents -3.4 -> -1.4 mm in mean.
+_DROP_MARGIN = 0.01
+_DROP_RISE_SHARE = 0.3
 # On uneven ground the surface (a quadratic hinged at the front axle) holds only so far: the
 # tracks beyond _UNEVEN_REACH (m from the camera, over the ground) carry its error into the
 # motion. The ground ahead is uneven when the last pair was irregular or one of its
@@ -236,6 +247,7 @@ class LocalGroundFilter:
         self.raised = RaisedGround()  # ground seen above the road, until the wheels pass it
         self._raised_seen: RaisedGround | None = None  # with the last pair's samples
         self._under_cache: tuple | None = None  # (raised, hinge, the wheels' heights)
+        self._front_dropped: float | None = None  # m: this pair's front wheels came down so far
         self.history_reads = False  # the road's history has read the camera's tilt
         self.travel_unread = 0.0  # m driven since the restart while the history could not read
         self.seen_tilt: np.ndarray | None = None  # its last reading, if believable
@@ -300,6 +312,18 @@ class LocalGroundFilter:
         mounting to use from now on (None when it did not change). Raises
         PoseEstimationError, before anything changes, when fewer than ``min_inliers`` fit.
         """
+        try:
+            return self._refine(est, rays1, m2, mounting, model, dt=dt,
+                                inlier_threshold=inlier_threshold,
+                                start_threshold=start_threshold, min_inliers=min_inliers)
+        finally:
+            self._front_dropped = None
+
+    def _refine(self, est: RansacResult, rays1: np.ndarray, m2: np.ndarray,
+                mounting: Mounting, model: TransferModel, *, dt: float,
+                inlier_threshold: float, start_threshold: float,
+                min_inliers: int) -> tuple[RansacResult, Mounting | None]:
+        """:meth:`refine`, whose front wheels' drop (_front_dropped) holds for one pair."""
         dt = max(dt, 1e-3)
         camera = self.tilted(mounting)
         hinge = self._surface_hinge()
@@ -312,9 +336,17 @@ class LocalGroundFilter:
         beyond, on_bumps = self._left_out(camera, v1, distance, 2 * min_inliers)
         hidden = beyond | on_bumps
         shown = np.flatnonzero(~hidden)
-        fit, prior = self._fit(est.motion, v1[shown], m2[shown], camera, prior,
-                               model.focal_px, dt=dt, inlier_threshold=inlier_threshold,
-                               start_threshold=start_threshold)
+        fit, used_prior = self._fit(est.motion, v1[shown], m2[shown], camera, prior,
+                                    model.focal_px, dt=dt, inlier_threshold=inlier_threshold,
+                                    start_threshold=start_threshold)
+        drop = self._front_drop(fit, dt, travel)
+        if drop > -hinge.height + _DROP_MARGIN:
+            self._front_dropped = drop
+            hinge = self._surface_hinge()
+            fit, used_prior = self._fit(est.motion, v1[shown], m2[shown], camera, prior,
+                                        model.focal_px, dt=dt, inlier_threshold=inlier_threshold,
+                                        start_threshold=start_threshold)
+        prior = used_prior
         fit, rough = self._without_bands(fit, est.motion, v1[shown], m2[shown], camera, prior,
                                          model.focal_px, inlier_threshold=inlier_threshold,
                                          start_threshold=start_threshold,
@@ -565,6 +597,8 @@ class LocalGroundFilter:
         while they are on it; otherwise the raised ground seen under each front wheel does (a
         bump crossed at an angle: 34 rendered drives 3.47 -> 3.22 % t_rel summed, stop 41).
         """
+        if self._front_dropped is not None:
+            return Hinge(self.hinge, self.track, -self._front_dropped)
         height = -self.bumps.front_height
         if not (self.bumps.at_front(self.hinge) or self.bumps.front_height > _KNOWN_HEIGHT):
             under = self._raised_under_wheels()
@@ -678,6 +712,14 @@ class LocalGroundFilter:
         scale = np.where(scale > 0.0, scale, 1.0)
         xy = camera[:2] + scale[:, None] * (points - camera[:2])
         return xy, camera[2] * (1.0 - scale)
+
+    def _front_drop(self, fit: LocalGroundResult, dt: float, travel: float) -> float:
+        """How far (m) the front wheels came down in the pair; 0 if they did not (_DROP_MARGIN)."""
+        if self._wheel_lift(fit.rotation, dt, travel) <= _IRREGULAR_LIFT:
+            return 0.0
+        curve = self.profile.pitch_change(self.hinge, _HALF_TRACK, travel)
+        drop = self.hinge * (float(fit.rotation[1]) - (curve or 0.0))
+        return drop if float(fit.rotation[2]) < _DROP_RISE_SHARE * drop else 0.0
 
     def _wheel_lift(self, rotation: np.ndarray, dt: float, travel: float) -> float:
         """How far a wheel was lifted (m): the rotation beyond what the body turns.
