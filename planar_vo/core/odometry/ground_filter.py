@@ -714,7 +714,10 @@ class LocalGroundFilter:
         return xy, camera[2] * (1.0 - scale)
 
     def _front_drop(self, fit: LocalGroundResult, dt: float, travel: float) -> float:
-        """How far (m) the front wheels came down in the pair; 0 if they did not (_DROP_MARGIN)."""
+        """How far (m) the front wheels came down in the pair, 0 if they did not.
+
+        0 also when it lifted no wheel, or base_link rose with it (a rear wheel climbing).
+        """
         if self._wheel_lift(fit.rotation, dt, travel) <= _IRREGULAR_LIFT:
             return 0.0
         curve = self.profile.pitch_change(self.hinge, _HALF_TRACK, travel)
