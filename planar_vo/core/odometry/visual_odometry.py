@@ -672,6 +672,10 @@ class VisualOdometry:
         """Average in one pair's readout; use the learned readout once known."""
         calibrator = copy.copy(self.readout_calibrator)  # replaced, never changed in place
         calibrator.add(readout, variance, dt)
+        self._take_readout(calibrator)
+
+    def _take_readout(self, calibrator: ReadoutCalibrator) -> None:
+        """Learn the readout with ``calibrator``; use its readout once known."""
         self.readout_calibrator = calibrator
         usable = calibrator.usable()
         if usable is not None:
@@ -720,10 +724,7 @@ class VisualOdometry:
             self.shutter_watch = watch
             return
         self.shutter_watch = None
-        self.readout_calibrator = watch.surface
-        usable = watch.surface.usable()
-        if usable is not None:
-            self.shutter = ShutterModel(usable, self.shutter.stamp)
+        self._take_readout(watch.surface)
         # What self-calibration learned so far, it learned through the shear: it starts over.
         self._tilt_filter.calibrator = MountingCalibrator(self.configured_mounting)
         self._use_mounting(self.configured_mounting)
