@@ -247,7 +247,6 @@ class LocalGroundFilter:
         self.raised = RaisedGround()  # ground seen above the road, until the wheels pass it
         self._raised_seen: RaisedGround | None = None  # with the last pair's samples
         self._under_cache: tuple | None = None  # (raised, hinge, the wheels' heights)
-        self._front_dropped: float | None = None  # m: this pair's front wheels came down so far
         self.history_reads = False  # the road's history has read the camera's tilt
         self.travel_unread = 0.0  # m driven since the restart while the history could not read
         self.seen_tilt: np.ndarray | None = None  # its last reading, if believable
@@ -312,18 +311,6 @@ class LocalGroundFilter:
         mounting to use from now on (None when it did not change). Raises
         PoseEstimationError, before anything changes, when fewer than ``min_inliers`` fit.
         """
-        try:
-            return self._refine(est, rays1, m2, mounting, model, dt=dt,
-                                inlier_threshold=inlier_threshold,
-                                start_threshold=start_threshold, min_inliers=min_inliers)
-        finally:
-            self._front_dropped = None
-
-    def _refine(self, est: RansacResult, rays1: np.ndarray, m2: np.ndarray,
-                mounting: Mounting, model: TransferModel, *, dt: float,
-                inlier_threshold: float, start_threshold: float,
-                min_inliers: int) -> tuple[RansacResult, Mounting | None]:
-        """:meth:`refine`, whose front wheels' drop (_front_dropped) holds for one pair."""
         dt = max(dt, 1e-3)
         camera = self.tilted(mounting)
         hinge = self._surface_hinge()
@@ -337,18 +324,20 @@ class LocalGroundFilter:
         hidden = beyond | on_bumps
         shown = np.flatnonzero(~hidden)
         fit, used_prior = self._fit(est.motion, v1[shown], m2[shown], camera, prior,
-                                    model.focal_px, dt=dt, inlier_threshold=inlier_threshold,
+                                    model.focal_px, hinge, dt=dt,
+                                    inlier_threshold=inlier_threshold,
                                     start_threshold=start_threshold)
         drop = self._front_drop(fit, dt, travel)
         if drop > -hinge.height + _DROP_MARGIN:
-            self._front_dropped = drop
-            hinge = self._surface_hinge()
+            hinge = Hinge(self.hinge, self.track, -drop)
             fit, used_prior = self._fit(est.motion, v1[shown], m2[shown], camera, prior,
-                                        model.focal_px, dt=dt, inlier_threshold=inlier_threshold,
+                                        model.focal_px, hinge, dt=dt,
+                                        inlier_threshold=inlier_threshold,
                                         start_threshold=start_threshold)
         prior = used_prior
         fit, rough = self._without_bands(fit, est.motion, v1[shown], m2[shown], camera, prior,
-                                         model.focal_px, inlier_threshold=inlier_threshold,
+                                         model.focal_px, hinge,
+                                         inlier_threshold=inlier_threshold,
                                          start_threshold=start_threshold,
                                          min_inliers=min_inliers)
         count = int(np.count_nonzero(fit.inliers))
@@ -357,7 +346,7 @@ class LocalGroundFilter:
         if hidden.any():
             fit = _on_all_tracks(fit, shown, len(v1))
         if travel > 0.0:
-            sides = side_offsets(fit, v1, m2, camera, self._surface_hinge(), model.focal_px,
+            sides = side_offsets(fit, v1, m2, camera, hinge, model.focal_px,
                                  half_width=self.half_width, left_out=beyond,
                                  threshold_px=inlier_threshold)
             self.side_drift = self.side_drift + min(travel / _SIDE_MEMORY_M, 1.0) * (
@@ -365,7 +354,8 @@ class LocalGroundFilter:
         if on_bumps.any():
             rough = rough | self._samples_near(np.array(self.bumps.ahead))
         lifted = self._wheel_lift(fit.rotation, dt, travel)
-        self.bumps = self._bumps_after(fit, prior, lifted, rays1, v1, m2, camera, distance)
+        self.bumps = self._bumps_after(fit, prior, lifted, rays1, v1, m2, camera, hinge,
+                                       distance)
         self.surface, self.surface_cov = fit.surface, fit.surface_cov
         # Weight 0.1: a residual 3 sigma off the surface (1 % of Gaussian noise).
         self.off_surface = float(np.mean(fit.weights[fit.inliers] < 0.1))
@@ -430,15 +420,16 @@ class LocalGroundFilter:
         return beyond, on_bumps
 
     def _fit(self, motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
-             prior: GroundPrior, focal_px: float, *, dt: float, inlier_threshold: float,
-             start_threshold: float) -> tuple[LocalGroundResult, GroundPrior]:
+             prior: GroundPrior, focal_px: float, hinge: Hinge, *, dt: float,
+             inlier_threshold: float, start_threshold: float,
+             ) -> tuple[LocalGroundResult, GroundPrior]:
         """The pair refined over the local ground, and the prior it used.
 
         Once more through a jolt if it is lost. A fit that slides sideways off its arc gives
         way to the jolt's fit if that one keeps to an arc; if that one slides through a jolt,
         to the fit held to its arc (see _SLIDE_SHARE).
         """
-        args = (motion, v1, m2, camera, prior, focal_px)
+        args = (motion, v1, m2, camera, prior, focal_px, hinge)
         options = dict(dt=dt, inlier_threshold=inlier_threshold, start_threshold=start_threshold)
         travel = float(np.hypot(motion[0], motion[1]))
         bound = max(_SLIDE_SHARE * travel, _SLIDE_FLOOR)
@@ -476,8 +467,9 @@ class LocalGroundFilter:
             return fit, used
 
     def _fit_smooth(self, motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
-                    prior: GroundPrior, focal_px: float, *, dt: float, inlier_threshold: float,
-                    start_threshold: float, arc_sigma: float | None = None,
+                    prior: GroundPrior, focal_px: float, hinge: Hinge, *, dt: float,
+                    inlier_threshold: float, start_threshold: float,
+                    arc_sigma: float | None = None,
                     ) -> tuple[LocalGroundResult, GroundPrior]:
         """The pair refined with the body's learned rate as the rotation's prior.
 
@@ -487,7 +479,7 @@ class LocalGroundFilter:
         fit = refine_on_local_ground(
             motion, v1, m2, camera, prior, focal_px=focal_px,
             threshold_px=inlier_threshold, start_threshold_px=start_threshold,
-            hinge=self._surface_hinge(), cauchy=_CAUCHY, arc_sigma=arc_sigma)
+            hinge=hinge, cauchy=_CAUCHY, arc_sigma=arc_sigma)
         travel = float(np.hypot(motion[0], motion[1]))
         if (self._wheel_lift(fit.rotation, dt, travel) <= _IRREGULAR_LIFT
                 and not self._height_held_down(fit, dt)):
@@ -500,7 +492,7 @@ class LocalGroundFilter:
         return refine_on_local_ground(
             motion, v1, m2, camera, lifted, focal_px=focal_px,
             threshold_px=inlier_threshold, start_threshold_px=start_threshold,
-            hinge=self._surface_hinge(), cauchy=_CAUCHY, arc_sigma=arc_sigma), lifted
+            hinge=hinge, cauchy=_CAUCHY, arc_sigma=arc_sigma), lifted
 
     def _height_held_down(self, fit: LocalGroundResult, dt: float) -> bool:
         """Whether the height change's prior held the camera down against the tracks.
@@ -513,8 +505,9 @@ class LocalGroundFilter:
         return abs(float(fit.measured_rotation[2])) > bound
 
     def _fit_jolt(self, motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
-                  prior: GroundPrior, focal_px: float, *, dt: float, inlier_threshold: float,
-                  start_threshold: float, arc_sigma: float | None = None,
+                  prior: GroundPrior, focal_px: float, hinge: Hinge, *, dt: float,
+                  inlier_threshold: float, start_threshold: float,
+                  arc_sigma: float | None = None,
                   ) -> tuple[LocalGroundResult, GroundPrior]:
         """The pair refined as a jolt beyond the learned rate, and the prior it used.
 
@@ -526,7 +519,7 @@ class LocalGroundFilter:
         fit = refine_on_local_ground(
             motion, v1, m2, camera, jolt, focal_px=focal_px,
             threshold_px=inlier_threshold, start_threshold_px=max(wide, start_threshold),
-            hinge=self._surface_hinge(), cauchy=_CAUCHY, arc_sigma=arc_sigma)
+            hinge=hinge, cauchy=_CAUCHY, arc_sigma=arc_sigma)
         if np.any(np.abs(fit.rotation[:2]) > JOLT_SIGMAS * self.rates[:2] * dt):
             # No vehicle turns that fast: an image that matches nothing (a shifted or corrupt
             # frame) fitted by a rotation.
@@ -558,13 +551,13 @@ class LocalGroundFilter:
 
     def _without_bands(self, fit: LocalGroundResult, motion: np.ndarray, v1: np.ndarray,
                        m2: np.ndarray, camera: Mounting, prior: GroundPrior, focal_px: float,
-                       *, inlier_threshold: float, start_threshold: float,
+                       hinge: Hinge, *, inlier_threshold: float, start_threshold: float,
                        min_inliers: int) -> tuple[LocalGroundResult, np.ndarray]:
         """``fit`` refined again without the bands off its surface (when that holds).
 
         Also returns which of the road history's samples ahead (SAMPLES_AHEAD) a band covers.
         """
-        keep = off_surface_bands(fit, v1, m2, camera, self._surface_hinge(), focal_px)
+        keep = off_surface_bands(fit, v1, m2, camera, hinge, focal_px)
         # The road's history is not kept where a band went: the smooth surface is not the
         # road there (all four terrains with a sprung body: 0.50 -> 0.44 %; marking every
         # sample of a pair whose surface jumped kept the body's tilt unread on 2/3 of it).
@@ -579,7 +572,7 @@ class LocalGroundFilter:
             again = refine_on_local_ground(
                 motion, v1[keep], m2[keep], camera, prior, focal_px=focal_px,
                 threshold_px=inlier_threshold, start_threshold_px=start_threshold,
-                hinge=self._surface_hinge(), cauchy=_CAUCHY)
+                hinge=hinge, cauchy=_CAUCHY)
         except PoseEstimationError:
             return fit, rough
         if np.count_nonzero(again.inliers) < min_inliers or not refit_consistent(again, fit):
@@ -597,8 +590,6 @@ class LocalGroundFilter:
         while they are on it; otherwise the raised ground seen under each front wheel does (a
         bump crossed at an angle: 34 rendered drives 3.47 -> 3.22 % t_rel summed, stop 41).
         """
-        if self._front_dropped is not None:
-            return Hinge(self.hinge, self.track, -self._front_dropped)
         height = -self.bumps.front_height
         if not (self.bumps.at_front(self.hinge) or self.bumps.front_height > _KNOWN_HEIGHT):
             under = self._raised_under_wheels()
@@ -630,13 +621,12 @@ class LocalGroundFilter:
 
     def _bumps_after(self, fit: LocalGroundResult, prior: GroundPrior, lifted: float,
                      rays1: np.ndarray, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
-                     distance: np.ndarray) -> BumpsAhead:
+                     hinge: Hinge, distance: np.ndarray) -> BumpsAhead:
         """The bumps ahead after the pair: those it shows, and the front wheels' height."""
         bumps = self.bumps
         curvature = float(np.max(np.abs(prior.surface[2:])))
         if (lifted <= _IRREGULAR_LIFT and self.rate_samples >= _BUMP_PAIRS
                 and fit.motion[0] > 0.0 and curvature < _RAISED_CURVATURE):
-            hinge = self._surface_hinge()
             excess, usable = flow_excess(fit.motion, fit.rotation, prior.surface, v1,
                                          rays1[:, :2] / rays1[:, 2:], m2, camera, hinge)
             if curvature < _BUMP_CURVATURE:
