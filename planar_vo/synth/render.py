@@ -295,7 +295,7 @@ class Renderer:
         if isinstance(rows, WorldRowPoses):
             return self.render_world_rows(k)
         xr, yr, yawr = rows.x[k], rows.y[k], rows.yaw[k]
-        s, width = self.supersample, self.camera.width * self.supersample
+        s = self.supersample
         if rows.camera_position is None:  # rigid mount: the ground geometry is precomputed
             img = self.sky.copy()
             r = self._sensor_row(self.g_idx)
@@ -340,12 +340,9 @@ class Renderer:
             depth = np.full(img.shape[0], np.inf)
             depth[self._c_idx[ground]] = t[ground]
         boxes = self.boxes_at(k)  # the traffic where it is at the frame's stamp
-        if boxes:  # row by row, each seen from its own pose
-            for rho in range(self.camera.height * s):
-                row = rho // s
-                sl = slice(rho * width, (rho + 1) * width)
-                self._render_boxes(img[sl], xr[row], yr[row], yawr[row], positions[row],
-                                   dirs[:, sl], depth[sl], sky[sl], boxes=boxes)
+        if boxes:  # each rendered row seen from its own pose
+            self._render_boxes(img, np.repeat(xr, s), np.repeat(yr, s), np.repeat(yawr, s),
+                               np.repeat(positions, s, axis=0), dirs, depth, sky, boxes=boxes)
         return self._finish(img, k)
 
     def render_world(self, k: int, position: np.ndarray,
@@ -420,18 +417,12 @@ class Renderer:
         # (exactly the hits when the rows agree)
         self._texture_hits(img, idx, gx, gy, np.hypot(gx - ox, gy - oy),
                            gx - (ox - positions[0, 0]), gy - (oy - positions[0, 1]))
-        cam, s = self.camera, self.supersample
+        s = self.supersample
         boxes = self.boxes_at(k)
-        if boxes:  # row by row, each seen from its own pose
-            depth = np.where(hit, t, np.inf)
-            dirs32 = dirs.astype(np.float32)
-            width = cam.width * s
-            under = [float(self.terrain.height(b.x, b.y)) for b in boxes]
-            for rho in range(cam.height * s):
-                sl = slice(rho * width, (rho + 1) * width)
-                self._render_boxes(img[sl], 0.0, 0.0, 0.0, positions[rho // s], dirs32[:, sl],
-                                   depth[sl], sky[sl], ground=self.terrain, boxes=boxes,
-                                   under=under)
+        if boxes:  # each rendered row seen from its own pose
+            self._render_boxes(img, 0.0, 0.0, 0.0, np.repeat(positions, s, axis=0),
+                               dirs.astype(np.float32), np.where(hit, t, np.inf), sky,
+                               ground=self.terrain, boxes=boxes)
         return self._finish(img, k)
 
     def _texture_hits(self, img: np.ndarray, idx: np.ndarray, gx: np.ndarray, gy: np.ndarray,
@@ -477,58 +468,64 @@ class Renderer:
             img += rng.standard_normal(img.shape[0], np.float32) * np.float32(self.noise_sigma)
         return np.clip(img + 0.5, 0, 255).astype(np.uint8).reshape(cam.height, cam.width)
 
-    def _render_boxes(self, img: np.ndarray, x: float, y: float, yaw: float,
-                      origin: np.ndarray, dirs: np.ndarray, depth: np.ndarray,
-                      sky: np.ndarray, ground: Terrain | None = None,
-                      boxes: list | None = None, under: list | None = None) -> None:
+    def _render_boxes(self, img: np.ndarray, x, y, yaw, origin: np.ndarray, dirs: np.ndarray,
+                      depth: np.ndarray, sky: np.ndarray, ground: Terrain | None = None,
+                      boxes: list | None = None) -> None:
         """Draw ``boxes`` (default: the static ones) over ``img`` from base_link (x, y, yaw).
 
         ``origin`` and the unit pixel rays ``dirs`` (3, N) are in base_link; ``depth`` is the
-        ground's ray length per pixel, ``sky`` the sky behind the haze. On a ``ground``
+        ground's ray length per pixel, ``sky`` the sky behind the haze. One pose (scalars,
+        ``origin`` (3,)) or one per band of N / R consecutive pixels (arrays (R,), ``origin``
+        (R, 3): the rows of a rolling shutter), so that a frame is one call. On a ``ground``
         terrain (world frame: x = y = yaw = 0) each box stands on the height under its centre
-        and reaches 0.5 m below it (the ground hides that part); ``under``: those heights, one
-        per box, when already known.
+        and reaches 0.5 m below it (the ground hides that part). The order the boxes are
+        drawn in does not matter: the nearest hit wins the depth test and the haze blends
+        towards ``sky``.
         """
-        c, s = math.cos(yaw), math.sin(yaw)
-        ox, oy, oz_camera = origin
+        origin = np.asarray(origin, np.float64).reshape(-1, 3)
+        x, y, yaw, ox, oy, oz_camera = np.broadcast_arrays(
+            *(np.asarray(v, np.float64).reshape(-1) for v in (x, y, yaw)), *origin.T)
+        bands = x.size
+        band = dirs.shape[1] // bands  # pixels per pose
+        rays = [dirs[i].reshape(bands, band) for i in range(3)]
+        c, s = np.cos(yaw), np.sin(yaw)
         cwx, cwy = x + c * ox - s * oy, y + s * ox + c * oy  # camera centre in odom
-        cands = []
-        for i, b in enumerate(self.boxes if boxes is None else boxes):
+        for b in self.boxes if boxes is None else boxes:
             if ground is None:
                 oz, bottom = oz_camera, 0.0
             else:  # the box's own vertical frame: z = 0 on the ground under its centre
-                base = float(ground.height(b.x, b.y)) if under is None else under[i]
+                base = float(ground.height(b.x, b.y))
                 oz, bottom = oz_camera - base, -0.5
             dx, dy = b.x - cwx, b.y - cwy
             mid, half = (b.height + bottom) / 2, (b.height - bottom) / 2
             r = math.sqrt(b.half_x ** 2 + b.half_y ** 2 + half ** 2)
-            dist = math.sqrt(dx * dx + dy * dy + (mid - oz) ** 2)
-            if dist - r > self.max_range:
+            dist = np.sqrt(dx * dx + dy * dy + (mid - oz) ** 2)
+            seen = dist - r <= self.max_range  # beyond: not drawn, not even against the sky
+            if not seen.any():
                 continue
+            # The rays within the bounding sphere's cone (all of them from inside it; none
+            # from a pose that does not see the box), in float32.
+            outside = dist > r * 1.001
+            with np.errstate(invalid='ignore'):
+                cos_th = np.where(outside, np.cos(np.arcsin(r / dist)), -np.inf)
+            cos_th = np.where(seen, cos_th, np.inf).astype(np.float32)[:, None]
             # Direction to the centre in base_link.
-            vb = np.array([c * dx + s * dy, -s * dx + c * dy, mid - oz]) / dist
-            cands.append((dist, b, vb, r, oz, bottom))
-        cands.sort(key=lambda e: e[0])
-        for dist, b, vb, r, oz, bottom in cands:
-            if dist > r * 1.001:
-                cos_th = math.cos(math.asin(r / dist))
-                vb32 = vb.astype(np.float32)
-                sel = np.flatnonzero(dirs[0] * vb32[0] + dirs[1] * vb32[1] + dirs[2] * vb32[2]
-                                     > cos_th)
-            else:
-                sel = np.arange(dirs.shape[1])
+            vb = (np.stack([c * dx + s * dy, -s * dx + c * dy, mid - oz])
+                  / dist).astype(np.float32)[:, :, None]
+            sel = np.flatnonzero(rays[0] * vb[0] + rays[1] * vb[1] + rays[2] * vb[2] > cos_th)
             if sel.size == 0:
                 continue
+            pose = sel // band
             d = dirs[:, sel].T.astype(np.float64)
             a = yaw - b.yaw  # base → box rotation
-            ca, sa = math.cos(a), math.sin(a)
+            ca, sa = np.cos(a)[pose], np.sin(a)[pose]
             dlx = ca * d[:, 0] - sa * d[:, 1]
             dly = sa * d[:, 0] + ca * d[:, 1]
             dlz = d[:, 2]
             cb, sb = math.cos(b.yaw), math.sin(b.yaw)
-            olx = cb * (cwx - b.x) + sb * (cwy - b.y)
-            oly = -sb * (cwx - b.x) + cb * (cwy - b.y)
-            olz = oz
+            olx = (cb * (cwx - b.x) + sb * (cwy - b.y))[pose]
+            oly = (-sb * (cwx - b.x) + cb * (cwy - b.y))[pose]
+            olz = oz[pose]
             with np.errstate(divide='ignore', invalid='ignore'):
                 tx1, tx2 = (-b.half_x - olx) / dlx, (b.half_x - olx) / dlx
                 ty1, ty2 = (-b.half_y - oly) / dly, (b.half_y - oly) / dly
@@ -542,9 +539,9 @@ class Renderer:
             if not hit.any():
                 continue
             tn = tnear[hit]
-            px = olx + tn * dlx[hit]
-            py = oly + tn * dly[hit]
-            pz = olz + tn * dlz[hit]
+            px = olx[hit] + tn * dlx[hit]
+            py = oly[hit] + tn * dly[hit]
+            pz = olz[hit] + tn * dlz[hit]
             face_x = tnx[hit] >= np.fmax(tny[hit], tnz[hit])
             face_z = ~face_x & (tnz[hit] >= tny[hit])
             tu = np.where(face_x, py, px)
@@ -558,7 +555,7 @@ class Renderer:
             rr = tn
             fs = np.clip((rr - 0.5 * self.max_range) / (0.5 * self.max_range), 0, 1)
             fog = 0.12 * (1 - np.exp(-rr / 30.0)) + 0.88 * fs * fs * (3 - 2 * fs)
-            img[idx] = val + (img[idx] * 0 + sky[idx] - val) * fog
+            img[idx] = val + (sky[idx] - val) * fog
             depth[idx] = tn
 
 
