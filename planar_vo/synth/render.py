@@ -119,10 +119,8 @@ class Renderer:
         ground = np.isfinite(t) & (dist < max_range)
         self.t_ground = np.where(ground, t, np.inf)
         # Footprint of each pixel on the ground (finite differences of hit points).
-        g = np.where(ground[:, None], gp, np.nan).reshape(h, w, 2)
-        du = np.linalg.norm(np.gradient(g, axis=1), axis=2)
-        dv = np.linalg.norm(np.gradient(g, axis=0), axis=2)
-        foot = np.fmax(du, dv).ravel()
+        g = np.where(ground[:, None], gp, np.nan)
+        foot = _footprint(g[:, 0].reshape(h, w), g[:, 1].reshape(h, w)).ravel()
         level = np.log2(np.maximum(np.nan_to_num(foot, nan=1e3) / self.texture.texel, 1e-9))
         level = np.clip(level, 0.0, self.texture.nlevels - 1.0)
         idx = np.flatnonzero(ground)
@@ -434,12 +432,9 @@ class Renderer:
         """
         cam, s = self.camera, self.supersample
         shape = (cam.height * s, cam.width * s)
-        grid = np.full((shape[0] * shape[1], 2), np.nan)
-        grid[idx, 0], grid[idx, 1] = foot_x, foot_y
-        grid = grid.reshape(*shape, 2)
-        du = np.linalg.norm(np.gradient(grid, axis=1), axis=2)
-        dv = np.linalg.norm(np.gradient(grid, axis=0), axis=2)
-        foot = np.fmax(du, dv).ravel()[idx]
+        grid_x, grid_y = np.full(shape[0] * shape[1], np.nan), np.full(shape[0] * shape[1], np.nan)
+        grid_x[idx], grid_y[idx] = foot_x, foot_y
+        foot = _footprint(grid_x.reshape(shape), grid_y.reshape(shape)).ravel()[idx]
         level = np.log2(np.maximum(np.nan_to_num(foot, nan=1e3) / self.texture.texel, 1e-9))
         level = np.clip(level, 0.0, self.texture.nlevels - 1.0)
         l0 = np.floor(level).astype(np.int64)
@@ -557,6 +552,19 @@ class Renderer:
             fog = 0.12 * (1 - np.exp(-rr / 30.0)) + 0.88 * fs * fs * (3 - 2 * fs)
             img[idx] = val + (sky[idx] - val) * fog
             depth[idx] = tn
+
+
+def _footprint(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Per pixel, the larger step between neighbouring ground points (x, y) (H, W) grids.
+
+    Central differences along each image axis (np.gradient); NaN where a neighbour has no
+    ground. The two planes apart: the norm over an interleaved axis of 2 is several times
+    slower (the same numbers).
+    """
+    du = np.gradient(x, axis=1), np.gradient(y, axis=1)
+    dv = np.gradient(x, axis=0), np.gradient(y, axis=0)
+    return np.fmax(np.sqrt(du[0] * du[0] + du[1] * du[1]),
+                   np.sqrt(dv[0] * dv[0] + dv[1] * dv[1]))
 
 
 def _rotate_rows(rotations: np.ndarray, rows: np.ndarray, vectors: np.ndarray) -> np.ndarray:
