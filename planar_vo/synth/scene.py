@@ -64,8 +64,8 @@ class Texture:
         rows = max(1, -(-m // cols))
         mapx = np.zeros(rows * cols, np.float32)
         mapy = np.zeros(rows * cols, np.float32)
-        mapx[:m] = np.mod(x / s - 0.5, n)
-        mapy[:m] = np.mod(y / s - 0.5, n)
+        mapx[:m] = _wrap(x / s - 0.5, n)
+        mapy[:m] = _wrap(y / s - 0.5, n)
         out = cv2.remap(self.levels[lev], mapx.reshape(rows, cols), mapy.reshape(rows, cols),
                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         return out.ravel()[:m]
@@ -95,6 +95,15 @@ class Texture:
                 va += (vb - va) * frac[a:b]
             out[a:b] = va
         return out
+
+
+def _wrap(v: np.ndarray, n: int) -> np.ndarray:
+    """``np.mod(v, n)`` for a power of two ``n``, bit for bit, an order of magnitude faster.
+
+    ``n * floor(v / n)`` is exact, so the result is the exact remainder rounded once, as
+    np.mod's (fmod, then + n when negative).
+    """
+    return v - n * np.floor(v / n)
 
 
 def _blur_wrap(img: np.ndarray, sigma: float) -> np.ndarray:
