@@ -150,7 +150,6 @@ class Renderer:
         self._c_idx = cand[order]
         self._c_l0 = c0[order]
         self._c_frac = (cand_level[order] - c0[order]).astype(np.float32)
-        self._c_rays = np.ascontiguousarray(self._unit_rays[:, self._c_idx])
         # A rolling shutter (planar_vo.synth.shutter): the pose of every row of every frame.
         self.rows = None
 
@@ -263,7 +262,7 @@ class Renderer:
         dirs = _rotate(rotation, self._unit_rays)
         sky = self._sky_fast(dirs[2])
         img = sky.copy()
-        d = _rotate(rotation, self._c_rays)
+        d = dirs[:, self._c_idx]
         depression = -d[2]
         down = depression > 1e-6
         t = np.float32(position[2]) / np.where(down, depression, np.float32(1.0))
@@ -311,12 +310,11 @@ class Renderer:
             positions = rows.camera_position[k]
             if np.any(positions[:, 2] <= 0):
                 raise ValueError('the camera must stay above the ground')
-            n = self._unit_rays.shape[1]
-            dirs = _rotate_rows(rotation, self._sensor_row(np.arange(n)), self._unit_rays)
+            dirs = _rotate_rows(np.repeat(rotation, s, axis=0), self._unit_rays)
             sky = self._sky_fast(dirs[2])
             img = sky.copy()
             r = self._sensor_row(self._c_idx)
-            d = _rotate_rows(rotation, r, self._c_rays)
+            d = dirs[:, self._c_idx]
             depression = -d[2]
             down = depression > 1e-6
             pos = positions.astype(np.float32)[r]
@@ -402,7 +400,8 @@ class Renderer:
             raise ValueError('the camera must stay above the ground')
         n = self._unit_rays.shape[1]
         row = self._sensor_row(np.arange(n))
-        dirs = _rotate_rows(rotations, row, self._unit_rays.astype(np.float64))
+        dirs = _rotate_rows(np.repeat(rotations, self.supersample, axis=0),
+                            self._unit_rays.astype(np.float64))
         origins = positions.T[:, row]  # (3, N): each ray from its row's camera
         sky = self._sky_fast(dirs[2].astype(np.float32))
         img = sky.copy()
@@ -567,11 +566,16 @@ def _footprint(x: np.ndarray, y: np.ndarray) -> np.ndarray:
                    np.sqrt(dv[0] * dv[0] + dv[1] * dv[1]))
 
 
-def _rotate_rows(rotations: np.ndarray, rows: np.ndarray, vectors: np.ndarray) -> np.ndarray:
-    """``rotations[rows[n]] @ vectors[:, n]`` for every n: (3, N) float32."""
-    r = rotations[rows]
-    return np.stack([r[:, i, 0] * vectors[0] + r[:, i, 1] * vectors[1]
-                     + r[:, i, 2] * vectors[2] for i in range(3)])
+def _rotate_rows(rotations: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """``rotations[b] @ vectors[:, n]`` for every ray n of band b: (3, N).
+
+    The N rays are R (``len(rotations)``) bands of N / R consecutive ones (the rendered rows),
+    each turned by its own rotation: broadcast over the band, not gathered per ray.
+    """
+    r = rotations[:, :, :, None]
+    v = vectors.reshape(3, len(rotations), -1)
+    return np.stack([r[:, i, 0] * v[0] + r[:, i, 1] * v[1] + r[:, i, 2] * v[2]
+                     for i in range(3)]).reshape(3, -1)
 
 
 def _subpixel_camera(camera: SynthCamera, s: int) -> SynthCamera:
