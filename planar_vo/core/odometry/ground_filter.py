@@ -649,7 +649,8 @@ class LocalGroundFilter:
         """The last refined pair's motion was taken: remember its road, move on.
 
         The body's tilt at the new reference frame is the road's history's, shrunk towards
-        none by how well that history is known.
+        none by how well that history is known; where the history cannot read it, the last
+        one held (SprungBody.held).
         """
         if self.last_fit is None:
             return
@@ -660,6 +661,10 @@ class LocalGroundFilter:
         self.raised, self._raised_seen = seen.moved(np.asarray(motion, dtype=float),
                                                     self.hinge), None
         self.last_fit = self.solution = None
+        turn = 0.0  # the pair's pitch beyond the road's curve: the body's, if no wheel lifted
+        curve = self.profile.pitch_change(self.hinge, _HALF_TRACK, float(motion[0]))
+        if curve is not None and self.wheel_lift <= _IRREGULAR_LIFT:
+            turn = float(rotation[1]) - curve
         self.profile = self.profile.with_pair(np.asarray(motion, dtype=float), rotation[:2],
                                               surface, surface_cov, used, self.hinge,
                                               self.rough_ahead)
@@ -675,6 +680,8 @@ class LocalGroundFilter:
             # rigid car with the bump between its axles).
             seen = None
         sprung, body = self.sprung.read_tilt(seen, self.tilt_offset, dt, focal_px)
+        if not sprung.tilt_read:
+            body = sprung.held(self.body, turn, focal_px)
         # The next pair's wheel plane is the camera tilted by the new body tilt: the
         # surface ahead, relative to it, tilts the other way (what the camera saw stays).
         change = body - self.body
