@@ -661,10 +661,9 @@ class LocalGroundFilter:
         self.raised, self._raised_seen = seen.moved(np.asarray(motion, dtype=float),
                                                     self.hinge), None
         self.last_fit = self.solution = None
-        turn = 0.0  # the pair's pitch beyond the road's curve: the body's, if no wheel lifted
-        curve = self.profile.pitch_change(self.hinge, _HALF_TRACK, float(motion[0]))
-        if curve is not None and self.wheel_lift <= _IRREGULAR_LIFT:
-            turn = float(rotation[1]) - curve
+        turn = self._pitch_beyond_road(rotation, float(motion[0]))  # the body's, if no lift
+        if turn is None or self.wheel_lift > _IRREGULAR_LIFT:
+            turn = 0.0
         self.profile = self.profile.with_pair(np.asarray(motion, dtype=float), rotation[:2],
                                               surface, surface_cov, used, self.hinge,
                                               self.rough_ahead)
@@ -717,9 +716,17 @@ class LocalGroundFilter:
         """
         if self._wheel_lift(fit.rotation, dt, travel) <= _IRREGULAR_LIFT:
             return 0.0
-        curve = self.profile.pitch_change(self.hinge, _HALF_TRACK, travel)
-        drop = self.hinge * (float(fit.rotation[1]) - (curve or 0.0))
+        beyond = self._pitch_beyond_road(fit.rotation, travel)
+        drop = self.hinge * (float(fit.rotation[1]) if beyond is None else beyond)
         return drop if float(fit.rotation[2]) < _DROP_RISE_SHARE * drop else 0.0
+
+    def _pitch_beyond_road(self, rotation: np.ndarray, travel: float) -> float | None:
+        """The pair's pitch (rad, nose down) beyond the remembered road's curve over ``travel``.
+
+        None until the history has the road under both axles.
+        """
+        curve = self.profile.pitch_change(self.hinge, _HALF_TRACK, travel)
+        return None if curve is None else float(rotation[1]) - curve
 
     def _wheel_lift(self, rotation: np.ndarray, dt: float, travel: float) -> float:
         """How far a wheel was lifted (m): the rotation beyond what the body turns.
@@ -729,10 +736,10 @@ class LocalGroundFilter:
         and t_rel was 0.57 % with them, 0.29 without). Near a bump the road's history is
         unsure, so the smaller of the pitch and its excess over the road's counts.
         """
-        pitch = self.profile.pitch_change(self.hinge, _HALF_TRACK, travel)
+        excess = self._pitch_beyond_road(rotation, travel)
         turn = np.abs(rotation[:2])
-        if pitch is not None:
-            turn[1] = min(turn[1], abs(rotation[1] - pitch))
+        if excess is not None:
+            turn[1] = min(turn[1], abs(excess))
         beyond = np.maximum(turn
                             - _WHEEL_LIFT_SIGMAS * np.sqrt(self.sprung.rate2) * dt, 0.0)
         return float(_HALF_TRACK * beyond[0] + self.hinge * beyond[1])
