@@ -139,9 +139,10 @@ SCHEMA: tuple[Param, ...] = (
           choices=('local', 'plane')),
     Param('wheelbase', 2.7, 'With ground_model local: how far ahead of base_link the wheels '
           'stand on the ground (the front axle; a differential-drive robot: its front caster, '
-          'or 0 when its drive wheels lead and the caster trails), m. The road ahead is free '
-          'to bend from there (set over 0.5 m inside the camera\'s view of the ground: from '
-          'where the view begins, with advice in /diagnostics).',
+          'or 0 when its drive wheels lead and the caster trails), m. The road is free to bend '
+          'from there, also where the camera sees it from behind them (set beyond the middle '
+          'of the camera\'s view of the ground: from where the view begins, with advice in '
+          '/diagnostics).',
           0.0, 20.0),
     Param('track_width', 1.6, 'With ground_model local: how far apart the wheels at wheelbase '
           'stand, centre to centre of their contact patches, m (a car\'s front track; a '

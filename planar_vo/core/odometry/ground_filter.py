@@ -169,7 +169,6 @@ _HELD_SHARE = 0.1
 _SIDE_SIGMAS = 2.0
 _SIDE_MEMORY_M = 5.0
 _HALF_TRACK = 1.0  # m either side of base_link whose remembered road the wheels stand on
-_WHEELS_INSIDE_VIEW = 0.5  # m: front wheels set this far inside the camera's view are not there
 
 
 class LocalGroundFilter:
@@ -183,7 +182,7 @@ class LocalGroundFilter:
                  self_calibrate: bool, half_width: float = np.inf, track: float = 0.0) -> None:
         self.rates = np.asarray(rates, dtype=float)  # upper bounds: roll, pitch, height rates
         self.wheelbase = wheelbase  # m ahead of base_link: the front axle, as configured
-        self.hinge = wheelbase  # m: where the road ahead may bend from (see_ground_from)
+        self.hinge = wheelbase  # m: where the road ahead may bend from (see_ground)
         self.track = track  # m between the front wheels
         self.half_width = half_width  # m either side of base_link: the surface's tracks
         self.self_calibrate = self_calibrate
@@ -206,20 +205,26 @@ class LocalGroundFilter:
                                  self_calibrate=self.self_calibrate,
                                  half_width=self.half_width, track=self.track)
 
-    def see_ground_from(self, near: float | None) -> None:
-        """The camera sees the ground from ``near`` m ahead of base_link (None: unknown).
+    def see_ground(self, view: tuple[float, float] | None) -> None:
+        """The camera sees the ground from ``view`` = (near, far) m ahead of base_link.
 
-        The road may bend from the front wheels on, and the camera cannot see it bend nearer
-        than that, unless the wheels are set inside its view: a small robot left at a car's
-        2.7 m took the road it saw as flat, 2.6 % off on hills (0.12 % with its own 0). Set
-        more than _WHEELS_INSIDE_VIEW inside the view, the road bends from where it is seen
-        (that robot: 0.23 %). A car's camera sees the road from past its front wheels.
+        The road bends from the front wheels on, wherever the camera sees it from: a car whose
+        camera sees the road from behind its front wheels (a wide lens, a low camera) has that
+        road on the same surface, carried back under the car. Only front wheels set beyond the
+        middle of the view are not there: a small robot left at a car's 2.7 m, seeing the
+        ground from 0.4 to 1.8 m, took the road it saw as flat, 2.6 % off on hills (0.12 % with
+        its own 0); bent from where its view begins, 0.23 %. (Until stop 46 wheels set 0.5 m
+        inside the view were moved to its near edge: a car's wide lens on hills 0.27 % instead
+        of 0.04.) None: the view is not known.
         """
-        inside = near is not None and self.wheelbase > near + _WHEELS_INSIDE_VIEW
-        self.hinge = max(near, 0.0) if inside else self.wheelbase
+        moved = view is not None and self.wheelbase > 0.5 * (view[0] + view[1])
+        self.hinge = max(view[0], 0.0) if moved else self.wheelbase
 
     def wheels_inside_view(self) -> bool:
-        """Whether the configured front wheels lie inside the camera's view of the ground."""
+        """Whether the front wheels were set beyond the middle of the camera's view (see_ground).
+
+        The road then bends from where the view begins, with advice in /diagnostics.
+        """
         return self.hinge != self.wheelbase
 
     def reset(self) -> None:
@@ -321,28 +326,21 @@ class LocalGroundFilter:
         v1 = rays1 @ camera.base_from_optical.T
         distance = wheel_plane_distance(camera, v1)
         beyond, on_bumps = self._left_out(camera, v1, distance, 2 * min_inliers)
+        fitted = dict(camera=camera, prior=prior, focal_px=model.focal_px, hinge=hinge, dt=dt,
+                      travel=travel, inlier_threshold=inlier_threshold,
+                      start_threshold=start_threshold, min_inliers=min_inliers)
+        try:
+            shown = np.flatnonzero(~(beyond | on_bumps))
+            fit, prior, hinge, rough = self._fit_shown(est.motion, v1, m2, shown, **fitted)
+        except PoseEstimationError:
+            if not on_bumps.any():
+                raise
+            # A bump remembered over most of a low camera's view left too few tracks to hold
+            # the pair (a car's camera 0.8 m up: 25 of 316, then tracking lost): with them.
+            on_bumps = np.zeros_like(on_bumps)
+            shown = np.flatnonzero(~beyond)
+            fit, prior, hinge, rough = self._fit_shown(est.motion, v1, m2, shown, **fitted)
         hidden = beyond | on_bumps
-        shown = np.flatnonzero(~hidden)
-        fit, used_prior = self._fit(est.motion, v1[shown], m2[shown], camera, prior,
-                                    model.focal_px, hinge, dt=dt,
-                                    inlier_threshold=inlier_threshold,
-                                    start_threshold=start_threshold)
-        drop = self._front_drop(fit, dt, travel)
-        if drop > -hinge.height + _DROP_MARGIN:
-            hinge = Hinge(self.hinge, self.track, -drop)
-            fit, used_prior = self._fit(est.motion, v1[shown], m2[shown], camera, prior,
-                                        model.focal_px, hinge, dt=dt,
-                                        inlier_threshold=inlier_threshold,
-                                        start_threshold=start_threshold)
-        prior = used_prior
-        fit, rough = self._without_bands(fit, est.motion, v1[shown], m2[shown], camera, prior,
-                                         model.focal_px, hinge,
-                                         inlier_threshold=inlier_threshold,
-                                         start_threshold=start_threshold,
-                                         min_inliers=min_inliers)
-        count = int(np.count_nonzero(fit.inliers))
-        if count < min_inliers:
-            raise PoseEstimationError(f'{count} inliers, fewer than {min_inliers}')
         if hidden.any():
             fit = _on_all_tracks(fit, shown, len(v1))
         if travel > 0.0:
@@ -402,6 +400,34 @@ class LocalGroundFilter:
         v1 = np.ascontiguousarray((rays1 @ camera.base_from_optical.T).T)
         r, J, front = surface_residuals(flat, v1, np.ascontiguousarray(m2.T), camera, hinge)
         return r, J[:8], np.where(front, weights, 0.0)
+
+    def _fit_shown(self, motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, shown: np.ndarray,
+                   *, camera: Mounting, prior: GroundPrior, focal_px: float, hinge: Hinge,
+                   dt: float, travel: float, inlier_threshold: float, start_threshold: float,
+                   min_inliers: int,
+                   ) -> tuple[LocalGroundResult, GroundPrior, Hinge, np.ndarray]:
+        """The pair refined on the ``shown`` tracks (indices into v1 and m2).
+
+        Its fit, the prior and the hinge it used, and the road history's samples a band covers
+        (see _without_bands). Once more from the front wheels' height if they came down. Raises
+        PoseEstimationError when fewer than ``min_inliers`` fit.
+        """
+        options = dict(dt=dt, inlier_threshold=inlier_threshold, start_threshold=start_threshold)
+        v1, m2 = v1[shown], m2[shown]
+        fit, used_prior = self._fit(motion, v1, m2, camera, prior, focal_px, hinge, **options)
+        drop = self._front_drop(fit, dt, travel)
+        if drop > -hinge.height + _DROP_MARGIN:
+            hinge = Hinge(self.hinge, self.track, -drop)
+            fit, used_prior = self._fit(motion, v1, m2, camera, prior, focal_px, hinge,
+                                        **options)
+        fit, rough = self._without_bands(fit, motion, v1, m2, camera, used_prior, focal_px,
+                                         hinge, inlier_threshold=inlier_threshold,
+                                         start_threshold=start_threshold,
+                                         min_inliers=min_inliers)
+        count = int(np.count_nonzero(fit.inliers))
+        if count < min_inliers:
+            raise PoseEstimationError(f'{count} inliers, fewer than {min_inliers}')
+        return fit, used_prior, hinge, rough
 
     def _left_out(self, camera: Mounting, v1: np.ndarray, distance: np.ndarray,
                   keep: int) -> tuple[np.ndarray, np.ndarray]:

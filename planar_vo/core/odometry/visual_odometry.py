@@ -232,7 +232,7 @@ class VisualOdometry:
         """Advice when the wheels are set where the camera sees the ground.
 
         The local ground then bends from where the camera sees it (see
-        :meth:`LocalGroundFilter.see_ground_from`); the wheels' own place is still better.
+        :meth:`LocalGroundFilter.see_ground`); the wheels' own place is still better.
         """
         if self.ground is None or not self.ground.wheels_inside_view():
             return {}
@@ -242,15 +242,22 @@ class VisualOdometry:
             'there. Set wheelbase to where the front wheels stand (a differential-drive robot: '
             'its front caster, or 0 when its drive wheels lead)')}
 
-    def _ground_seen_from(self) -> float | None:
-        """How far ahead of base_link (m) the camera's view of the ground begins, if it does."""
+    def _ground_seen(self) -> tuple[float, float] | None:
+        """How far ahead of base_link (m) the camera's view of the ground begins and ends.
+
+        Over a grid of the image (the rays ``horizon_margin`` below the horizon); None when
+        no ray meets the ground.
+        """
         width, height = self.camera.width, self.camera.height
         if width <= 0 or height <= 0:
             return None
-        bottom = np.c_[np.linspace(0.0, width - 1.0, 9), np.full(9, height - 1.0)]
-        points, valid = self.mounting.ground_points(rays_through(self.camera.normalize(bottom)),
+        u, v = np.meshgrid(np.linspace(0.0, width - 1.0, 9), np.linspace(0.0, height - 1.0, 33))
+        grid = np.c_[u.ravel(), v.ravel()]
+        points, valid = self.mounting.ground_points(rays_through(self.camera.normalize(grid)),
                                                     self.horizon_margin)
-        return float(np.min(points[valid, 0])) if np.any(valid) else None
+        if not np.any(valid):
+            return None
+        return float(np.min(points[valid, 0])), float(np.max(points[valid, 0]))
 
     def _mounting_diagnostics(self) -> tuple[dict[str, str], dict[str, str]]:
         if self._tilt_filter is None or not self._tilt_filter.self_calibrate:
@@ -299,7 +306,7 @@ class VisualOdometry:
                 self_calibrate=self.attitude_filter.self_calibrate)
         if self.ground is not None:
             self.ground = self.ground.for_mounting(mounting)
-            self.ground.see_ground_from(self._ground_seen_from())
+            self.ground.see_ground(self._ground_seen())
 
     def diagnostics(self) -> dict[str, str]:
         """The estimator's state as /diagnostics key/values (the node adds them as they are)."""
@@ -328,7 +335,7 @@ class VisualOdometry:
         self.camera, self.mounting = camera, mounting
         self.front.set_geometry(camera, mounting, mask)
         if self.ground is not None:
-            self.ground.see_ground_from(self._ground_seen_from())
+            self.ground.see_ground(self._ground_seen())
 
     # ---------------------------------------------------------------- one frame
     def process(self, gray: np.ndarray, stamp: float) -> FrameResult:
