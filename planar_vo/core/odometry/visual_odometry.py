@@ -245,13 +245,13 @@ class VisualOdometry:
     def _ground_seen(self) -> tuple[float, float] | None:
         """How far ahead of base_link (m) the camera's view of the ground begins and ends.
 
-        Over a grid of the image (the rays ``horizon_margin`` below the horizon); None when
-        no ray meets the ground.
+        Over every image row in nine columns (the rays ``horizon_margin`` below the horizon);
+        None when no ray meets the ground.
         """
         width, height = self.camera.width, self.camera.height
         if width <= 0 or height <= 0:
             return None
-        u, v = np.meshgrid(np.linspace(0.0, width - 1.0, 9), np.linspace(0.0, height - 1.0, 33))
+        u, v = np.meshgrid(np.linspace(0.0, width - 1.0, 9), np.arange(float(height)))
         grid = np.c_[u.ravel(), v.ravel()]
         points, valid = self.mounting.ground_points(rays_through(self.camera.normalize(grid)),
                                                     self.horizon_margin)
