@@ -466,7 +466,7 @@ def test_a_differential_drive_robot_holds_on_hills():
 # road bent from where the camera sees it, 5.7 %. 752x480, 300 frames at 30 Hz: 0.23 %, 2.6 %
 # before, its wheels set 0.12 %.
 def test_a_robot_left_at_a_car_s_wheelbase_still_holds_on_hills():
-    """The wheels configured 2.7 m ahead, inside the camera's view of the ground (0.4-2 m
+    """The wheels configured 2.7 m ahead, beyond the camera's view of the ground (0.3-1.8 m
     ahead): the road is taken to bend from where it is seen, not from the wheels."""
     local, results, _ = _drive('hills', 'local', 'diff_drive', wheels_set=False)
     plane, _, _ = _drive('hills', 'plane', 'diff_drive')
@@ -602,7 +602,7 @@ def test_wheels_set_inside_the_camera_view_get_advice(mount, wheelbase, advised)
 def test_a_mounting_changed_at_run_time_keeps_the_vehicle_s_wheels():
     """The local ground is rebuilt for the new mounting with the configured wheels and lane
     (it once came back with no track and every track in the surface), and a robot's wheels
-    set inside the camera's view still bend the road from where the view begins."""
+    set beyond the middle of the camera's view still bend the road from where it begins."""
     K = np.array([[300.0, 0.0, 320.0], [0.0, 300.0, 240.0], [0.0, 0.0, 1.0]])
     camera = CameraModel(K, np.zeros(5), 'plumb_bob', 640, 480)
     vo = VisualOdometry.from_params(camera, config.validate(

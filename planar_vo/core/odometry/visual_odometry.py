@@ -214,7 +214,7 @@ class VisualOdometry:
         """(key/values for diagnostics, advice per parameter the drive says is off).
 
         The mounting's while self-calibration is on, the readout's while it is learned, and
-        the wheelbase's when it lies inside the camera's view of the ground.
+        the wheelbase's when it lies beyond the middle of the camera's view of the ground.
         """
         values, advice = self._mounting_diagnostics()
         advice = {**advice, **self._wheelbase_advice()}
