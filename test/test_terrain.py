@@ -466,7 +466,7 @@ def test_a_differential_drive_robot_holds_on_hills():
 # road bent from where the camera sees it, 5.7 %. 752x480, 300 frames at 30 Hz: 0.23 %, 2.6 %
 # before, its wheels set 0.12 %.
 def test_a_robot_left_at_a_car_s_wheelbase_still_holds_on_hills():
-    """The wheels configured 2.7 m ahead, beyond the camera's view of the ground (0.3-1.8 m
+    """The wheels configured 2.7 m ahead, beyond the camera's view of the ground (0.46-1.8 m
     ahead): the road is taken to bend from where it is seen, not from the wheels."""
     local, results, _ = _drive('hills', 'local', 'diff_drive', wheels_set=False)
     plane, _, _ = _drive('hills', 'plane', 'diff_drive')
