@@ -310,8 +310,26 @@ def test_constructor_defaults_are_the_parameter_schemas():
     tracker, d = Tracker(), config.defaults()  # the tracker's own defaults are the schema's
     assert (tracker.max_features, tracker.quality_level, tracker.min_distance, tracker.window,
             tracker.levels, tracker.fb_threshold) == (
-        d['max_features'], d['quality_level'], d['min_distance'], d['klt_window'],
+        d['max_features'], d['quality_level'], schema.tracker.min_distance, d['klt_window'],
         d['klt_levels'], d['fb_threshold'])
+
+
+@pytest.mark.parametrize(('size', 'configured', 'spacing'), [
+    ((640, 480), 0.0, 8.0), ((752, 480), 0.0, 8.0), ((376, 240), 0.0, 8.0),
+    ((1280, 720), 0.0, 8.0 * np.sqrt(1280 * 720 / (752 * 480))),  # 13.1 px
+    ((1920, 1080), 0.0, 8.0 * np.sqrt(1920 * 1080 / (752 * 480))),  # 19.2 px
+    ((1920, 1080), 5.0, 5.0), ((376, 240), 12.0, 12.0)])
+def test_features_keep_their_spread_on_a_larger_image(size, configured, spacing):
+    """min_distance 0 (the default) is 8 px up to 752x480 and grows with the image's side
+    beyond it (the same features 8 px apart crowd a 720p image: README, Camera input); a
+    configured value is used as it is."""
+    width, height = size
+    K = np.array([[0.7 * width, 0.0, width / 2], [0.0, 0.7 * width, height / 2], [0, 0, 1.0]])
+    camera = CameraModel(K, np.zeros(5), 'plumb_bob', width, height)
+    params = {**config.defaults(), 'min_distance': configured, 'camera_x': 1.2,
+              'camera_height': 1.25, 'camera_pitch': np.radians(8.0)}
+    assert VisualOdometry.from_params(camera, params).tracker.min_distance == pytest.approx(
+        spacing)
 
 
 def test_pose_covariance_holds_correlated_step_errors_and_a_persistent_scale_error():

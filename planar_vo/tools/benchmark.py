@@ -191,9 +191,7 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
     paced_s, paced_cpu_s = _paced(camera, params, images, PACED_HZ)
 
     # Frame-to-frame correspondences (every frame a reference), as the pipeline forms them.
-    tracker = Tracker(max_features=params['max_features'], quality_level=params['quality_level'],
-                      min_distance=params['min_distance'], window=params['klt_window'],
-                      levels=params['klt_levels'], fb_threshold=params['fb_threshold'])
+    tracker = Tracker.from_params(params, camera.width, camera.height)
     correspondences = []
     mask = vo.front.mask
     if mask is None:
@@ -293,11 +291,7 @@ def _odometry(camera: Any, params: dict[str, Any], tracker_kwargs: dict[str, Any
     """The odometry of ``params``, its tracker built with ``tracker_kwargs`` added."""
     vo = VisualOdometry.from_params(camera, params)
     if tracker_kwargs:
-        tracker = Tracker(max_features=params['max_features'],
-                          quality_level=params['quality_level'],
-                          min_distance=params['min_distance'], window=params['klt_window'],
-                          levels=params['klt_levels'], fb_threshold=params['fb_threshold'],
-                          **tracker_kwargs)
+        tracker = Tracker.from_params(params, camera.width, camera.height, **tracker_kwargs)
         tracker.set_normalize(camera.normalize)
         vo.front.tracker = tracker
     return vo

@@ -130,10 +130,7 @@ class VisualOdometry:
                     params: config.Params | Mapping[str, Any]) -> VisualOdometry:
         """Build from the parameter schema's values (see :mod:`planar_vo.core.config`)."""
         params = config.make_params(params)
-        tracker = Tracker(
-            max_features=params['max_features'], quality_level=params['quality_level'],
-            min_distance=params['min_distance'], window=params['klt_window'],
-            levels=params['klt_levels'], fb_threshold=params['fb_threshold'])
+        tracker = Tracker.from_params(params, camera.width, camera.height)
         return cls(
             camera, mounting_from_params(params), tracker=tracker,
             horizon_margin=params['horizon_margin'], ransac_method=params['ransac_method'],

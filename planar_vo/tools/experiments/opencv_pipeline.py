@@ -16,6 +16,7 @@ import numpy as np
 from planar_vo.core.estimation.opencv_motion import homography_motion
 from planar_vo.core.estimation.ransac import PoseEstimationError
 from planar_vo.core.frontend.ground_mask import ground_mask
+from planar_vo.core.frontend.tracker import feature_spacing
 from planar_vo.core.geometry.camera import CameraModel, Mounting
 
 __all__ = ['OpenCVReference']
@@ -64,7 +65,9 @@ class OpenCVReference:
         check and inlier threshold, so only the method differs.
         """
         return cls(camera, mounting, max_features=params['max_features'],
-                   quality_level=params['quality_level'], min_distance=params['min_distance'],
+                   quality_level=params['quality_level'],
+                   min_distance=feature_spacing(params['min_distance'], camera.width,
+                                                camera.height),
                    fb_threshold=params['fb_threshold'],
                    inlier_threshold_px=params['inlier_threshold'],
                    horizon_margin=params['horizon_margin'])
