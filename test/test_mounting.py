@@ -17,7 +17,7 @@ from planar_vo.core import config
 from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry
 from planar_vo.io import resources
-from test.conftest import sprung_body_params, synth_camera_model
+from test.conftest import run_scenario, sprung_body_params, synth_camera_model
 
 
 def _params(truth_mounting, overrides):
@@ -320,3 +320,21 @@ def test_a_sprung_car_at_20_hz_with_auto_exposure_changes():
     assert rows[0.2]['t_rel_percent'] < 0.11, rows
     assert rows[0.2]['t_rel_percent'] < 1.5 * rows[0.0]['t_rel_percent'], rows
     assert rows[0.2]['r_rel_deg_per_100m'] < 0.4, rows
+
+
+@pytest.mark.parametrize(('ground_model', 'bar'), [('plane', 0.3), ('local', 1.2)])
+def test_a_camera_looking_back_drives_on_without_losing_its_tracks(ground_model, bar):
+    """A rear camera (behind the rear axle, turned 180 deg) sees the ground move away while
+    the car drives on: its tracks drift up to the horizon margin and must give their budget
+    to new ones near the car. They kept it: on this flat drive (376x240, 90 frames) tracking
+    restarted 5 times, t_rel 0.44 % with the plane, 3.5 % with the local ground; now none,
+    0.14 and 0.72 % (the local ground expects to see the road its wheels will drive on:
+    README, Limits)."""
+    rear = synth.CameraMount(x=-0.9, y=0.0, height=1.1, roll=0.0, pitch=np.radians(8.0),
+                             yaw=np.pi)
+    results, truth = run_scenario('default', 90, seed=3, rate=20.0, mounting=rear,
+                                  camera=synth.SynthCamera.scaled(376, 240),
+                                  overrides={'ground_model': ground_model})
+    assert [r.status for r in results].count('reinitialized') == 0
+    m = metrics(np.array([r.pose for r in results]), truth)
+    assert m['t_rel_percent'] < bar, m

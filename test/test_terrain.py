@@ -599,6 +599,20 @@ def test_wheels_set_inside_the_camera_view_get_advice(mount, wheelbase, advised)
         assert 'from 0.36 m' in advice['wheelbase'], advice
 
 
+def test_a_camera_looking_back_is_told_what_the_local_ground_cannot_do():
+    """Not the wheelbase (the view starts behind the rear axle, which would move the hinge
+    there): the ground model, which expects the road the wheels will drive on."""
+    K = np.array([[460.0, 0.0, 376.0], [0.0, 460.0, 240.0], [0.0, 0.0, 1.0]])
+    camera = CameraModel(K, np.zeros(5), 'plumb_bob', 752, 480)
+    rear = dataclasses.replace(CAR_MOUNT, x=-0.9, yaw=np.pi)
+    advice = VisualOdometry.from_params(camera, config.validate(
+        config.mounting_params(rear))).mounting_diagnostics()[1]
+    assert list(advice) == ['ground_model'] and 'looks back' in advice['ground_model']
+    plane = VisualOdometry.from_params(camera, config.validate(
+        {**config.mounting_params(rear), 'ground_model': 'plane'}))
+    assert plane.mounting_diagnostics()[1] == {}
+
+
 def test_a_mounting_changed_at_run_time_keeps_the_vehicle_s_wheels():
     """The local ground is rebuilt for the new mounting with the configured wheels and lane
     (it once came back with no track and every track in the surface), and a robot's wheels

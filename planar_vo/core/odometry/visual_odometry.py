@@ -211,7 +211,8 @@ class VisualOdometry:
         """(key/values for diagnostics, advice per parameter the drive says is off).
 
         The mounting's while self-calibration is on, the readout's while it is learned, and
-        the wheelbase's when it lies beyond the middle of the camera's view of the ground.
+        the wheelbase's when it lies beyond the middle of the camera's view of the ground (the
+        ground model's for a camera that looks back).
         """
         values, advice = self._mounting_diagnostics()
         advice = {**advice, **self._wheelbase_advice()}
@@ -229,9 +230,18 @@ class VisualOdometry:
         """Advice when the wheels are set where the camera sees the ground.
 
         The local ground then bends from where the camera sees it (see
-        :meth:`LocalGroundFilter.see_ground`); the wheels' own place is still better.
+        :meth:`LocalGroundFilter.see_ground`); the wheels' own place is still better. A camera
+        that looks back is told what the local ground cannot do for it instead.
         """
-        if self.ground is None or not self.ground.wheels_inside_view():
+        if self.ground is None:
+            return {}
+        if np.cos(self.mounting.yaw) < 0.0:
+            return {'ground_model': (
+                'the camera looks back: the local ground is built for a camera that sees the '
+                'road its wheels will drive on (looking back, rendered: 0.11 % on a flat road, '
+                '2.1 % over grades, bumps, camber and hills); on a flat floor set ground_model '
+                'to plane')}
+        if not self.ground.wheels_inside_view():
             return {}
         return {'wheelbase': (
             f'wheelbase is {self.ground.wheelbase:.2f} m but the camera sees the ground from '
@@ -557,10 +567,12 @@ class VisualOdometry:
         # Tracks far off the motion are obstacles or mismatches: free their grid cells.
         errors = transfer_errors(est.motion, p1_ok, m2[ok], model, stretch)
         drop = idx[ok][errors > _OUTLIER_DROP * self.inlier_threshold]
-        if est.motion[0] < 0.0:
-            # Reversing, the image's tracks drift above the horizon margin, never to be used
-            # again, and kept the track budget (13 of 362 usable on a rendered stop-and-go
-            # drive, and a restart): they go.
+        if _receding(est.motion, mounting):
+            # Where the ground seen moves away from the camera (reversing with a camera that
+            # looks ahead, driving on with one that looks back) its tracks drift above the
+            # horizon margin, never to be used again, and kept the track budget (13 of 362
+            # usable on a rendered stop-and-go drive; a rear camera restarted every 11
+            # frames): they go.
             drop = np.union1d(drop, idx[~v2])
         self.front.drop(drop)
         self.counters['estimated'] += 1
@@ -806,3 +818,8 @@ def _with_size(camera: CameraModel, shape: tuple[int, int]) -> CameraModel:
 def relative_motion(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The motion from the end of ``a`` to the end of ``b`` (both from the same start)."""
     return compose(inverse_motion(a), np.zeros((3, 3)), b, np.zeros((3, 3)))[0]
+
+
+def _receding(motion: np.ndarray, mounting: Mounting) -> bool:
+    """Whether the step ``motion`` (x, y, yaw) takes the camera back from what it looks at."""
+    return motion[0] * np.cos(mounting.yaw) + motion[1] * np.sin(mounting.yaw) < 0.0
