@@ -599,17 +599,25 @@ def test_wheels_set_inside_the_camera_view_get_advice(mount, wheelbase, advised)
         assert 'from 0.36 m' in advice['wheelbase'], advice
 
 
-def test_a_camera_looking_back_is_told_what_the_local_ground_cannot_do():
-    """Not the wheelbase (the view starts behind the rear axle, which would move the hinge
-    there): the ground model, which expects the road the wheels will drive on."""
+@pytest.mark.parametrize('x, yaw, advised', [
+    (-0.9, np.pi, 'turned 180 deg'), (1.0, -np.pi / 2, 'turned 90 deg'),
+    (1.0, np.radians(30.0), 'turned 30 deg'), (1.2, np.radians(20.0), None)])
+def test_a_camera_turned_away_from_ahead_is_told_what_the_local_ground_cannot_do(x, yaw,
+                                                                                  advised):
+    """Not the wheelbase (a camera looking back sees the ground from behind the rear axle,
+    which moves the hinge there): the ground model, which expects the road the wheels will
+    drive on (rendered flat drives: 20 deg as good as ahead, 30 deg worse than the plane)."""
     K = np.array([[460.0, 0.0, 376.0], [0.0, 460.0, 240.0], [0.0, 0.0, 1.0]])
     camera = CameraModel(K, np.zeros(5), 'plumb_bob', 752, 480)
-    rear = dataclasses.replace(CAR_MOUNT, x=-0.9, yaw=np.pi)
+    turned = dataclasses.replace(CAR_MOUNT, x=x, yaw=yaw)
     advice = VisualOdometry.from_params(camera, config.validate(
-        config.mounting_params(rear))).mounting_diagnostics()[1]
-    assert list(advice) == ['ground_model'] and 'looks back' in advice['ground_model']
+        config.mounting_params(turned))).mounting_diagnostics()[1]
+    if advised is None:
+        assert advice == {}, advice
+    else:
+        assert list(advice) == ['ground_model'] and advised in advice['ground_model'], advice
     plane = VisualOdometry.from_params(camera, config.validate(
-        {**config.mounting_params(rear), 'ground_model': 'plane'}))
+        {**config.mounting_params(turned), 'ground_model': 'plane'}))
     assert plane.mounting_diagnostics()[1] == {}
 
 
