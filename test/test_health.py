@@ -111,3 +111,42 @@ def test_median_processing_time_is_over_the_latest_frames_only():
     _, _, values = health.report(RECENT_FRAMES / 30.0, calibrated=True)
     assert values[f'median processing time, last {RECENT_FRAMES} frames (ms)'] == '12.50'
     assert float(values['mean processing time (ms)']) > 40.0  # the mean still has the start
+
+
+def feed_numbered(health, start, rate, sequences, size_bytes):
+    """One image at ``rate`` Hz per publisher sequence number in ``sequences``."""
+    for k, sequence in enumerate(sequences):
+        health.image_received(start + k / rate, sequence=sequence, size_bytes=size_bytes)
+        health.frame_done(result('ok'))
+    return start + len(sequences) / rate
+
+
+def test_images_lost_on_the_way_warn_and_say_why_when_qos_and_size_explain_it():
+    """Gaps in the publisher's sequence numbers are images the node never saw: a 720p mono8
+    image (900 kB) over best effort, which Fast DDS loses, gets the advice; the same loss of
+    small images, or over reliable QoS, is reported without it."""
+    every_other = list(range(1, 120, 2))  # half of them lost
+    health = Health(best_effort=True)
+    t = feed_numbered(health, 0.0, 15.0, every_other, 1280 * 720)
+    level, message, values = health.report(t, calibrated=True)
+    assert level == WARN and '50 % of the images lost on the way (900 kB' in message, message
+    assert 'image_reliability' in message and values['images lost on the way'] == '59'
+    for quiet in (Health(best_effort=True), Health(best_effort=False)):
+        size = 752 * 480 if quiet.best_effort else 1280 * 720
+        t = feed_numbered(quiet, 0.0, 15.0, every_other, size)
+        level, message, _ = quiet.report(t, calibrated=True)
+        assert level == WARN and '50 % of the images lost on the way' in message
+        assert 'image_reliability' not in message, message
+
+
+def test_no_loss_from_a_publisher_that_starts_over_and_a_loss_passes():
+    """A lower sequence number is another (or a restarted) publisher, not a loss; a loss
+    older than the window no longer warns, but stays counted."""
+    health = Health()
+    t = feed_numbered(health, 0.0, 20.0, list(range(1, 41)) + list(range(1, 41)), 100_000)
+    assert health.report(t, calibrated=True)[0] == OK
+    t = feed_numbered(health, t, 20.0, [50] + list(range(51, 61)), 100_000)  # 9 lost
+    assert health.report(t, calibrated=True)[0] == WARN
+    t = feed_numbered(health, t, 20.0, list(range(61, 121)), 100_000)  # 3 s later
+    level, _, values = health.report(t, calibrated=True)
+    assert level == OK and values['images lost on the way'] == '9'

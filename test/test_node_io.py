@@ -285,6 +285,7 @@ def _diagnostics_ok_stale_lost(io, frames, DiagnosticStatus):  # noqa: N803 - a 
     assert float(values['image rate (Hz)']) > 0.0 and int(values['tracks']) > 50
     assert int(values['inliers']) > 20 and float(values['processing time (ms)']) > 0
     assert values['last failure'] and 'camera mounting (x y z m, roll pitch yaw rad)' in values
+    assert values['images lost on the way'] == '0'  # sent in lockstep, reliable
     # Stale: no image for a second.
     stale = _wait_for_status(io, DiagnosticStatus.WARN, 'no image for')
     assert stale.hardware_id == 'camera_optical_frame'

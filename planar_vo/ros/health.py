@@ -1,9 +1,10 @@
 """How the odometry is doing, as /diagnostics reports it: a level, why, and the numbers.
 
-WARN when no image came for a second or the image rate fell below half of what it was, ERROR
-while tracking is lost (a restart after failed frames, or more than a few frames in a row
-without an estimate), OK otherwise. Several conditions at once: the worst level, every reason.
-No ROS imports: the node feeds it receive times (monotonic s) and frame results.
+WARN when no image came for a second, the image rate fell below half of what it was, or images
+were lost on the way (gaps in the publisher's sequence numbers); ERROR while tracking is lost
+(a restart after failed frames, or more than a few frames in a row without an estimate), OK
+otherwise. Several conditions at once: the worst level, every reason. No ROS imports: the node
+feeds it receive times (monotonic s), sequence numbers and frame results.
 """
 
 from __future__ import annotations
@@ -19,14 +20,24 @@ OK, WARN, ERROR = 0, 1, 2  # the levels of diagnostic_msgs/DiagnosticStatus
 _NEUTRAL = ('first', 'duplicate')  # statuses that say nothing about tracking
 _LOST_AFTER = 3  # frames in a row without an estimate before tracking counts as lost
 RECENT_FRAMES = 60  # the median processing time is over this many of the latest frames
+# Images lost on the way over this share of those sent within the window make a warning.
+_LOST_SHARE = 0.05
+# Fast DDS loses best-effort messages larger than its shared-memory segment, sent at full rate
+# (20-70 % of 1 MB images on this machine); smaller ones arrive whole (ROS notes).
+LARGE_IMAGE_BYTES = 512 * 1024
 
 
 class Health:
     """Image arrivals and frame results in; ``report(now)`` out."""
 
     def __init__(self, *, stale_after: float = 1.0, window: float = 2.0,
-                 smoothing: float = 0.1) -> None:
+                 smoothing: float = 0.1, best_effort: bool = True) -> None:
         self.stale_after, self.window, self.smoothing = stale_after, window, smoothing
+        self.best_effort = best_effort  # the image subscription's QoS: what a loss advises
+        self._last_sequence: int | None = None
+        self._lost: deque[tuple[float, int]] = deque()  # (receive time, images lost before it)
+        self.lost_total = 0
+        self._image_bytes = 0
         self._arrivals: deque[float] = deque()  # receive times within the last window
         self._last_arrival: float | None = None
         self._usual_rate: float | None = None  # smoothed image rate, Hz
@@ -41,14 +52,25 @@ class Health:
         # busy moment of a shared machine moves a mean but not a median.
         self._recent_ms: deque[float] = deque(maxlen=RECENT_FRAMES)
 
-    def image_received(self, now: float) -> None:
+    def image_received(self, now: float, sequence: int | None = None,
+                       size_bytes: int = 0) -> None:
         """An image arrived at ``now`` (monotonic s), whether or not it could be used.
 
         Arrival times may come out of order (images queued while the node was busy are
-        dated when they were received): they are kept sorted.
+        dated when they were received): they are kept sorted. ``sequence``: the publisher's
+        sequence number of the message (its gaps are images lost on the way, in the
+        middleware or the subscription's queue); a lower one starts over (another publisher,
+        a restarted one). ``size_bytes``: the image's data.
         """
         bisect.insort(self._arrivals, now)
         self._last_arrival = max(now, self._last_arrival or now)
+        if sequence is not None:
+            if self._last_sequence is not None and sequence > self._last_sequence + 1:
+                lost = sequence - self._last_sequence - 1
+                self._lost.append((now, lost))
+                self.lost_total += lost
+            self._last_sequence = sequence
+        self._image_bytes = size_bytes
 
     def frame_done(self, result: Any) -> None:
         """A FrameResult of the odometry."""
@@ -82,6 +104,23 @@ class Health:
             self._arrivals.popleft()
         return self._arrivals[-1] - self._arrivals[0] if self._arrivals else 0.0
 
+    def _lost_share(self, now: float) -> float:
+        """Of the images sent within the last ``window`` s, the share lost on the way."""
+        while self._lost and self._lost[0][0] < now - self.window:
+            self._lost.popleft()
+        lost = sum(n for _, n in self._lost)
+        received = sum(1 for t in self._arrivals if t >= now - self.window)
+        return lost / (lost + received) if lost else 0.0
+
+    def _lost_advice(self, share: float) -> str:
+        """What the loss says, and what to do when the QoS and the images' size explain it."""
+        text = f'{100 * share:.0f} % of the images lost on the way'
+        if self.best_effort and self._image_bytes > LARGE_IMAGE_BYTES:
+            text += (f' ({self._image_bytes / 1024:.0f} kB each, best-effort QoS: Fast DDS '
+                     'loses those over 512 kB): set image_reliability to reliable (the camera '
+                     'publishing reliable), or send smaller images (mono8, compressed)')
+        return text
+
     def report(self, now: float, *, calibrated: bool,
                ground_irregular: bool = False) -> tuple[int, str, dict[str, str]]:
         """(level, message, values) at ``now``; call it about once a second.
@@ -102,6 +141,9 @@ class Health:
             problems.append((WARN, self.last_failure))
         if calibrated and ground_irregular:
             problems.append((WARN, 'the ground ahead is irregular: covariance inflated'))
+        lost = self._lost_share(now)
+        if lost > _LOST_SHARE:
+            problems.append((WARN, self._lost_advice(lost)))
         if rate > 0 and self._usual_rate and rate < 0.5 * self._usual_rate:
             problems.append((WARN, f'image rate {rate:.1f} Hz, below half of the usual '
                                    f'{self._usual_rate:.1f} Hz'))
@@ -121,6 +163,7 @@ class Health:
             'mean processing time (ms)': f'{self._ms_sum / max(self.frames, 1):.2f}',
             f'median processing time, last {RECENT_FRAMES} frames (ms)':
                 f'{statistics.median(self._recent_ms) if self._recent_ms else 0.0:.2f}',
+            'images lost on the way': str(self.lost_total),
             'frames without estimate in a row': str(self._failed_in_a_row),
             'last failure': self.last_failure or 'none',
         }

@@ -117,6 +117,7 @@ class PlanarVoNode(Node):
         self.add_post_set_parameters_callback(self._on_params_set)
 
         p = self.params
+        self._health.best_effort = p['image_reliability'] == 'best_effort'
         image_qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST, depth=5,
             reliability=ReliabilityPolicy.RELIABLE if p['image_reliability'] == 'reliable'
@@ -247,7 +248,10 @@ class PlanarVoNode(Node):
     def _receive(self, msg, decode, info: dict) -> None:
         stamp = _stamp_ns(msg.header.stamp)
         with self._small_lock:
-            self._health.image_received(_received_monotonic(info))
+            self._health.image_received(
+                _received_monotonic(info), size_bytes=len(msg.data),
+                sequence=info.get('publication_sequence_number') if isinstance(info, dict)
+                else None)
         self._hand_over(self._frontend.pairing.add_image(stamp, (msg, decode)))
         if self._frontend.waiting:
             self._pairing_timer.reset()
