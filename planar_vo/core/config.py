@@ -86,10 +86,12 @@ SCHEMA: tuple[Param, ...] = (
     Param('publish_debug_image', False, 'Publish ~/debug_image with inlier/outlier tracks.'),
     Param('image_transport', 'raw', "'raw' subscribes image, 'compressed' image/compressed.",
           choices=('raw', 'compressed'), read_only=True),
-    Param('image_reliability', 'best_effort',
+    Param('image_reliability', 'auto',
           "QoS of the image subscription: 'best_effort' connects to every publisher; "
-          "'reliable' avoids losing large frames but only connects to reliable publishers.",
-          choices=('best_effort', 'reliable'), read_only=True),
+          "'reliable' avoids losing large frames but only connects to reliable publishers; "
+          "'auto' is best effort, reliable while the images are over 512 kB and every "
+          "publisher of the topic is reliable.",
+          choices=('auto', 'best_effort', 'reliable'), read_only=True),
     Param('rectified_input', False, 'The images are rectified (e.g. image_proc image_rect): '
           'use the CameraInfo projection P and no distortion.', read_only=True),
     # Tracking.

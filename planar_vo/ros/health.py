@@ -37,7 +37,7 @@ class Health:
         self._last_sequence: int | None = None
         self._lost: deque[tuple[float, int]] = deque()  # (receive time, images lost before it)
         self.lost_total = 0
-        self._image_bytes = 0
+        self.image_bytes = 0  # the last image's data
         self._arrivals: deque[float] = deque()  # receive times within the last window
         self._last_arrival: float | None = None
         self._usual_rate: float | None = None  # smoothed image rate, Hz
@@ -70,7 +70,7 @@ class Health:
                 self._lost.append((now, lost))
                 self.lost_total += lost
             self._last_sequence = sequence
-        self._image_bytes = size_bytes
+        self.image_bytes = size_bytes
 
     def frame_done(self, result: Any) -> None:
         """A FrameResult of the odometry."""
@@ -115,8 +115,8 @@ class Health:
     def _lost_advice(self, share: float) -> str:
         """What the loss says, and what to do when the QoS and the images' size explain it."""
         text = f'{100 * share:.0f} % of the images lost on the way'
-        if self.best_effort and self._image_bytes > LARGE_IMAGE_BYTES:
-            text += (f' ({self._image_bytes / 1024:.0f} kB each, best-effort QoS: Fast DDS '
+        if self.best_effort and self.image_bytes > LARGE_IMAGE_BYTES:
+            text += (f' ({self.image_bytes / 1024:.0f} kB each, best-effort QoS: Fast DDS '
                      'loses those over 512 kB): set image_reliability to reliable (the camera '
                      'publishing reliable), or send smaller images (mono8, compressed)')
         return text

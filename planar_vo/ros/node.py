@@ -46,7 +46,7 @@ from planar_vo.core.geometry.camera import CameraModelError
 from planar_vo.core.odometry import VisualOdometry
 from planar_vo.ros import messages
 from planar_vo.ros.camera_frontend import CHANGED, CREATED, CameraFrontend, Step
-from planar_vo.ros.health import Health
+from planar_vo.ros.health import LARGE_IMAGE_BYTES, Health
 from planar_vo.ros.outputs import OdometryOutputs
 from planar_vo.ros.pairing import Paired
 from planar_vo.ros.parameters import SCHEMA_BY_NAME, StartupError, declare_schema
@@ -59,6 +59,9 @@ _PLANAR = (0, 1, 5)  # x, y, yaw within a 6x6 covariance over (x, y, z, roll, pi
 _WARN_EVERY = 10.0  # s: the same cause of a skipped frame is logged at most this often
 _WARN_CAUSES = 64  # distinct causes remembered for throttling (oldest forgotten first)
 _PAIRING_WAIT = 0.05  # s an image waits at most for the CameraInfo of its stamp
+# s: a subscription replaced by one of other QoS goes once the new one met every publisher,
+# or after this long.
+_RETIRE_AFTER = 5.0
 STALE_AFTER = 0.1  # s: an image waiting this much longer than the newest one is dropped
 
 
@@ -117,23 +120,16 @@ class PlanarVoNode(Node):
         self.add_post_set_parameters_callback(self._on_params_set)
 
         p = self.params
-        self._health.best_effort = p['image_reliability'] == 'best_effort'
-        image_qos = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST, depth=5,
-            reliability=ReliabilityPolicy.RELIABLE if p['image_reliability'] == 'reliable'
-            else ReliabilityPolicy.BEST_EFFORT)
         # CameraInfo first: when it and its image are both waiting, the executor takes them in
         # this order, and the image is processed in its own callback instead of waiting for
         # the CameraInfo's turn.
         self._info_sub = self.create_subscription(
             CameraInfo, 'camera_info', self._on_camera_info, qos_profile_sensor_data)
-        if p['image_transport'] == 'compressed':
-            topic = self.resolve_topic_name('image') + '/compressed'
-            self._image_sub = self.create_subscription(
-                CompressedImage, topic, self._on_compressed, image_qos)
-        else:
-            topic = 'image'
-            self._image_sub = self.create_subscription(Image, topic, self._on_image, image_qos)
+        self._image_topic = self.resolve_topic_name('image') + (
+            '/compressed' if p['image_transport'] == 'compressed' else '')
+        self._image_sub, self._retiring = None, None
+        self._last_image_stamp = None
+        self._subscribe_images(self._image_reliability())
         self._set_pose_sub = self.create_subscription(
             PoseWithCovarianceStamped, 'set_pose', self._on_set_pose, 10)
         self._outputs = OdometryOutputs(self, self.params)
@@ -141,6 +137,8 @@ class PlanarVoNode(Node):
         self._reset_srv = self.create_service(Trigger, '~/reset', self._on_reset)
         steady = Clock(clock_type=ClockType.STEADY_TIME)  # also with use_sim_time, no /clock
         self._diag_timer = self.create_timer(1.0, self._publish_diagnostics, clock=steady)
+        if p['image_reliability'] == 'auto':
+            self._qos_timer = self.create_timer(1.0, self._match_image_publishers, clock=steady)
         self._pairing_timer = self.create_timer(_PAIRING_WAIT, self._stop_waiting, clock=steady,
                                                 autostart=False)
         self.get_logger().info(
@@ -198,6 +196,61 @@ class PlanarVoNode(Node):
         self._frontend.rebuild(self.params)
 
     # ---------------------------------------------------------------- input
+    def _image_reliability(self) -> ReliabilityPolicy:
+        """The image subscription's QoS at start-up: as configured; best effort with 'auto'.
+
+        Best effort connects to every publisher; _match_image_publishers changes it later.
+        """
+        return (ReliabilityPolicy.RELIABLE if self.params['image_reliability'] == 'reliable'
+                else ReliabilityPolicy.BEST_EFFORT)
+
+    def _subscribe_images(self, reliability: ReliabilityPolicy) -> None:
+        """(Re)subscribe the images with ``reliability``.
+
+        The old subscription stays until the new one has met every publisher (or for
+        _RETIRE_AFTER s), so no image falls between them; an image both bring is taken once.
+        """
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5, reliability=reliability)
+        compressed = self.params['image_transport'] == 'compressed'
+        if self._image_sub is not None:
+            self._retiring = (self._image_sub, time.monotonic() + _RETIRE_AFTER)
+        self._image_sub = self.create_subscription(
+            CompressedImage if compressed else Image, self._image_topic,
+            self._on_compressed if compressed else self._on_image, qos)
+        self._image_qos = reliability
+        self._health.best_effort = reliability == ReliabilityPolicy.BEST_EFFORT
+
+    @_guarded('the image publishers')
+    def _match_image_publishers(self) -> None:
+        """With image_reliability 'auto': follow the images' size and the publishers' QoS.
+
+        Reliable once the images are over 512 kB and every publisher of the topic is reliable
+        (Fast DDS loses best-effort messages that large: half of 1280x720 mono8 images sent
+        in a burst), best effort again once one is not.
+        """
+        publishers = self.get_publishers_info_by_topic(self._image_topic)
+        if self._retiring is not None and (
+                self._image_sub.get_publisher_count() >= len(publishers)
+                or time.monotonic() > self._retiring[1]):
+            self.destroy_subscription(self._retiring[0])
+            self._retiring = None
+        reliable = [info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+                    for info in publishers]
+        if self._image_qos == ReliabilityPolicy.RELIABLE and not all(reliable):
+            wanted = ReliabilityPolicy.BEST_EFFORT
+        elif (self._image_qos == ReliabilityPolicy.BEST_EFFORT and reliable and all(reliable)
+              and self._health.image_bytes > LARGE_IMAGE_BYTES):
+            wanted = ReliabilityPolicy.RELIABLE
+        else:
+            return
+        if self._retiring is not None:  # still switching: the next tick
+            return
+        self._subscribe_images(wanted)
+        how = ('reliable: the images are large and every publisher is reliable'
+               if wanted == ReliabilityPolicy.RELIABLE else 'best effort: a publisher is')
+        self.get_logger().info(f'{self._image_topic} subscribed {how}')
+
+
     def _warn(self, text: str, *, error: bool = False) -> None:
         """Log ``text``, throttled per cause (see :class:`WarningThrottle`)."""
         # rclpy ties a severity to each call site: two calls, not one
@@ -248,6 +301,9 @@ class PlanarVoNode(Node):
     def _receive(self, msg, decode, info: dict) -> None:
         stamp = _stamp_ns(msg.header.stamp)
         with self._small_lock:
+            if self._retiring is not None and stamp == self._last_image_stamp:
+                return  # brought by both subscriptions while they change over
+            self._last_image_stamp = stamp
             self._health.image_received(
                 _received_monotonic(info), size_bytes=len(msg.data),
                 sequence=info.get('publication_sequence_number') if isinstance(info, dict)
@@ -385,6 +441,8 @@ class PlanarVoNode(Node):
                 time.monotonic(), calibrated=self.vo is not None,
                 ground_irregular=self.vo is not None and self.vo.ground_irregular)
             values['unexpected errors'] = str(self._errors)
+            values['image subscription'] = (
+                'reliable' if self._image_qos == ReliabilityPolicy.RELIABLE else 'best effort')
         with self._inbox:
             values['frames dropped for a newer one (busy)'] = str(self._dropped)
         advice = {}
