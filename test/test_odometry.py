@@ -314,22 +314,46 @@ def test_constructor_defaults_are_the_parameter_schemas():
         d['klt_levels'], d['fb_threshold'])
 
 
-@pytest.mark.parametrize(('size', 'configured', 'spacing'), [
-    ((640, 480), 0.0, 8.0), ((752, 480), 0.0, 8.0), ((376, 240), 0.0, 8.0),
-    ((1280, 720), 0.0, 8.0 * np.sqrt(1280 * 720 / (752 * 480))),  # 13.1 px
-    ((1920, 1080), 0.0, 8.0 * np.sqrt(1920 * 1080 / (752 * 480))),  # 19.2 px
-    ((1920, 1080), 5.0, 5.0), ((376, 240), 12.0, 12.0)])
-def test_features_keep_their_spread_on_a_larger_image(size, configured, spacing):
-    """min_distance 0 (the default) is 8 px up to 752x480 and grows with the image's side
-    beyond it (the same features 8 px apart crowd a 720p image: README, Camera input); a
-    configured value is used as it is."""
+@pytest.mark.parametrize(('size', 'configured', 'binning', 'spacing'), [
+    ((640, 480), 0.0, 0, 8.0), ((752, 480), 0.0, 0, 8.0), ((376, 240), 0.0, 0, 8.0),
+    ((1280, 720), 0.0, 0, 8.0 * np.sqrt(1280 * 720 / (752 * 480))),  # 13.1 px
+    ((1920, 1080), 0.0, 1, 8.0 * np.sqrt(1920 * 1080 / (752 * 480))),  # 19.2 px
+    ((1920, 1080), 0.0, 0, 8.0 * np.sqrt(960 * 540 / (752 * 480))),  # binned 2x2: 9.6 px
+    ((1920, 1080), 5.0, 1, 5.0), ((376, 240), 12.0, 0, 12.0)])
+def test_features_keep_their_spread_on_a_larger_image(size, configured, binning, spacing):
+    """min_distance 0 (the default) is 8 px up to 752x480 and grows with the side of the
+    image tracked beyond it (the same features 8 px apart crowd a 720p image: README, Camera
+    input); a configured value is used as it is."""
     width, height = size
     K = np.array([[0.7 * width, 0.0, width / 2], [0.0, 0.7 * width, height / 2], [0, 0, 1.0]])
     camera = CameraModel(K, np.zeros(5), 'plumb_bob', width, height)
-    params = {**config.defaults(), 'min_distance': configured, 'camera_x': 1.2,
-              'camera_height': 1.25, 'camera_pitch': np.radians(8.0)}
+    params = {**config.defaults(), 'min_distance': configured, 'image_binning': binning,
+              'camera_x': 1.2, 'camera_height': 1.25, 'camera_pitch': np.radians(8.0)}
     assert VisualOdometry.from_params(camera, params).tracker.min_distance == pytest.approx(
         spacing)
+
+
+@pytest.mark.parametrize(('size', 'configured', 'binning'), [
+    ((752, 480), 0, 1), ((1280, 720), 0, 1), ((1600, 900), 0, 1), ((1920, 1080), 0, 2),
+    ((3840, 2160), 0, 3), ((752, 480), 2, 2), ((1920, 1080), 1, 1)])
+def test_images_over_one_and_a_half_megapixels_are_binned(size, configured, binning):
+    """image_binning 0 (the default): none up to 1.5 megapixels, above it the least factor
+    that brings the image under them; the camera model is the binned image's: a ground
+    point lands where the full camera puts it, in binned pixels (closed form: a binned pixel
+    u' covers full pixels b u' .. b u' + b - 1, u' = (u - (b - 1) / 2) / b)."""
+    width, height = size
+    K = np.array([[0.6 * width, 0.0, width / 2 + 3.0], [0.0, 0.6 * width, height / 2 - 2.0],
+                  [0, 0, 1.0]])
+    D = np.array([-0.25, 0.07, 0.0005, -0.0005, 0.0])
+    camera = CameraModel(K, D, 'plumb_bob', width, height)
+    params = {**config.defaults(), 'image_binning': configured, 'camera_x': 1.2,
+              'camera_height': 1.25, 'camera_pitch': np.radians(8.0)}
+    vo = VisualOdometry.from_params(camera, params)
+    assert vo.binning == binning
+    assert (vo.camera.width, vo.camera.height) == (width // binning, height // binning)
+    full = camera.distort(np.array([[0.1, 0.3], [-0.2, 0.25]]))
+    binned = vo.camera.distort(np.array([[0.1, 0.3], [-0.2, 0.25]]))
+    np.testing.assert_allclose(binned, (full - 0.5 * (binning - 1)) / binning, atol=1e-9)
 
 
 def test_pose_covariance_holds_correlated_step_errors_and_a_persistent_scale_error():
@@ -361,3 +385,19 @@ def test_pose_covariance_holds_correlated_step_errors_and_a_persistent_scale_err
                                 covariance.shared_error_covariance(
                                     np.array([speed * dt, 0.0, 0.0]), np.zeros((3, 3)), dt))
         assert 0.9 < cov[0, 0] / (scale * speed).var() < 1.1, (rate, cov[0, 0])
+
+
+def test_a_binned_drive_holds_and_reports_its_tracks_in_the_image_given():
+    """752x480 frames binned 2x2 (image_binning 2) against the renderer's truth (measured:
+    t_rel 0.035 %, 0.021 unbinned); the debug image's tracks are in the pixels of the image
+    the odometry was given, not of the binned one it tracked."""
+    from planar_vo.synth import SynthCamera
+    results, truth = run_scenario('gentle', 60, seed=0, rate=20.0,
+                                  camera=SynthCamera.scaled(752, 480),
+                                  overrides={'image_binning': 2})
+    assert [r.status for r in results].count('ok') == 59
+    m = metrics(np.array([r.pose for r in results]), truth)
+    assert m['t_rel_percent'] < 0.1, m
+    points = np.concatenate([r.inlier_points for r in results])
+    assert points[:, 0].max() > 600 and points[:, 1].max() > 400  # beyond 376x240
+    assert np.all((points >= 0) & (points < [752, 480]))

@@ -38,7 +38,7 @@ from planar_vo.core.estimation.opencv_motion import essential_motion, homography
 from planar_vo.core.estimation.ransac import PoseEstimationError, TransferModel, estimate_motion
 from planar_vo.core.frontend.motion_search import GroundMotionSearch
 from planar_vo.core.frontend.tracker import Tracker
-from planar_vo.core.geometry.camera import rays_through
+from planar_vo.core.geometry.camera import bin_image, rays_through
 from planar_vo.core.geometry.se2 import compose
 from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry
@@ -190,13 +190,16 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
 
     paced_s, paced_cpu_s = _paced(camera, params, images, PACED_HZ)
 
-    # Frame-to-frame correspondences (every frame a reference), as the pipeline forms them.
+    # Frame-to-frame correspondences (every frame a reference), as the pipeline forms them,
+    # on the images as it tracks them (binned above 1.5 megapixels) and with its camera.
+    tracked = [(bin_image(gray, vo.binning), stamp) for gray, stamp in decoded]
+    camera = vo.camera
     tracker = Tracker.from_params(params, camera.width, camera.height)
     correspondences = []
     mask = vo.front.mask
     if mask is None:
-        mask = np.full(decoded[0][0].shape, 255, np.uint8)
-    for gray, _ in decoded:
+        mask = np.full(tracked[0][0].shape, 255, np.uint8)
+    for gray, _ in tracked:
         tracker.track(gray)
         correspondences.append(tracker.correspondences()[1:])
         tracker.replenish(mask, is_reference=True)
@@ -220,9 +223,9 @@ def run_benchmark(bag: Path, params: dict[str, Any], *, progress: bool = False,
     # (klt_first_search), on every pair of the bag as if it were that one.
     search = GroundMotionSearch(vo.camera)
     times['first_pair_ground_search'] = [
-        _time(search.search, decoded[i - 1][0], decoded[i][0],
-              decoded[i][1] - decoded[i - 1][1], model, params['horizon_margin'])
-        for i in range(1, len(decoded))]
+        _time(search.search, tracked[i - 1][0], tracked[i][0],
+              tracked[i][1] - tracked[i - 1][1], model, params['horizon_margin'])
+        for i in range(1, len(tracked))]
     for i, pairs in enumerate(correspondences):
         bar.update()
         if pairs is None:
@@ -291,8 +294,9 @@ def _odometry(camera: Any, params: dict[str, Any], tracker_kwargs: dict[str, Any
     """The odometry of ``params``, its tracker built with ``tracker_kwargs`` added."""
     vo = VisualOdometry.from_params(camera, params)
     if tracker_kwargs:
-        tracker = Tracker.from_params(params, camera.width, camera.height, **tracker_kwargs)
-        tracker.set_normalize(camera.normalize)
+        tracker = Tracker.from_params(params, vo.camera.width, vo.camera.height,
+                                      **tracker_kwargs)
+        tracker.set_normalize(vo.camera.normalize)
         vo.front.tracker = tracker
     return vo
 

@@ -16,8 +16,8 @@ import numpy as np
 
 from planar_vo.core.errors import CameraModelError
 
-__all__ = ['CameraModel', 'CameraModelError', 'MAX_IMAGE_SIDE', 'Mounting', 'level_to_base',
-           'rays_through', 'BODY_FROM_OPTICAL']
+__all__ = ['CameraModel', 'CameraModelError', 'MAX_IMAGE_SIDE', 'Mounting', 'bin_image',
+           'level_to_base', 'rays_through', 'BODY_FROM_OPTICAL']
 
 # Columns: optical x = body -y, optical y = body -z, optical z = body x (REP-103 optical frame).
 BODY_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -65,6 +65,17 @@ def level_to_base(points_xy: np.ndarray, height: float) -> np.ndarray:
     """
     x, y = points_xy[..., 0], points_xy[..., 1]
     return np.stack([-y, np.full_like(x, height), x], axis=-1)
+
+
+def bin_image(gray: np.ndarray, factor: int) -> np.ndarray:
+    """``gray`` averaged over ``factor`` x ``factor`` blocks (a last partial block dropped).
+
+    The image :meth:`CameraModel.binned` describes.
+    """
+    if factor == 1:
+        return gray
+    h, w = gray.shape[0] // factor, gray.shape[1] // factor
+    return cv2.resize(gray[:h * factor, :w * factor], (w, h), interpolation=cv2.INTER_AREA)
 
 
 @dataclass(frozen=True)
@@ -122,6 +133,21 @@ class CameraModel:
                 f'undistortion gives no ray at pixel ({x:.0f}, {y:.0f}) with '
                 f'{self.distortion_model} D = {np.round(self.D, 6).tolist()}: check the '
                 'distortion coefficients')
+
+    def binned(self, factor: int) -> CameraModel:
+        """The camera of its images averaged over ``factor`` x ``factor`` pixel blocks.
+
+        A binned pixel u' covers the full pixels factor u' .. factor u' + factor - 1, whose
+        centre is factor u' + (factor - 1) / 2: u' = (u - (factor - 1) / 2) / factor. The lens
+        (D, on normalized coordinates) is the same.
+        """
+        if factor == 1:
+            return self
+        K = self.K.copy()
+        K[:2] /= factor
+        K[:2, 2] = (self.K[:2, 2] - 0.5 * (factor - 1)) / factor
+        return CameraModel(K, self.D, self.distortion_model, self.width // factor,
+                           self.height // factor)
 
     @property
     def focal_px(self) -> float:
