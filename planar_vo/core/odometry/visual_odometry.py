@@ -226,7 +226,7 @@ class VisualOdometry:
         ground model's for a camera turned away from straight ahead).
         """
         values, advice = self._mounting_diagnostics()
-        advice = {**advice, **self._wheelbase_advice()}
+        advice = {**advice, **self._ground_advice()}
         readout = self.readout_estimate()
         if readout is not None:
             configured = self.configured_shutter.readout
@@ -237,12 +237,13 @@ class VisualOdometry:
             advice = {**advice, **readout_advice(configured, readout)}
         return values, advice
 
-    def _wheelbase_advice(self) -> dict[str, str]:
-        """Advice when the wheels are set where the camera sees the ground.
+    def _ground_advice(self) -> dict[str, str]:
+        """Advice when the local ground cannot hold as configured.
 
-        The local ground then bends from where the camera sees it (see
-        :meth:`LocalGroundFilter.see_ground`); the wheels' own place is still better. A camera
-        turned away from straight ahead is told what the local ground cannot do for it instead.
+        Wheels set where the camera sees the ground: the local ground then bends from where
+        the camera sees it (see :meth:`LocalGroundFilter.see_ground`); the wheels' own place is
+        still better. A camera turned away from straight ahead is told what the local ground
+        cannot do for it instead.
         """
         if self.ground is None:
             return {}
