@@ -560,7 +560,8 @@ class VisualOdometry:
                 self.integrator.add(held.stamp, previous - held.stamp, still, still_cov)
             start, step = previous, relative_motion(still, est.motion)
         elif (reference_image is not None and self._ref_stamp == previous
-              and self.standstill.quiet(planar.motion, planar.covariance)):
+              and self.standstill.quiet(planar.motion, planar.covariance,
+                                        None if est is planar else est.motion)):
             # A stop: the previous frame stays the reference, this frame's motion is none.
             rows = idx[ok][est.inliers]
             self.standstill.enter(HeldReference(
