@@ -753,7 +753,7 @@ class VisualOdometry:
         surface = self._readout_on_surface(motion, deskew)
         if plane is None or surface is None:
             return
-        watch = self.shutter_watch.add(plane, surface, dt)
+        watch = self.shutter_watch.add(plane, surface, dt, float(np.hypot(*motion[:2])))
         if watch.ruled_out():
             self.shutter_watch = None
             return
