@@ -66,7 +66,7 @@ _FOUND_PAIRS = 40
 # ... and from this much road (m) or time (s) on. A road's bend reads as a readout for as long
 # as the camera sees it: the issue's camera over all four terrains, sprung, a global shutter,
 # read 22 +- 1 ms through the surface over its first 40 pairs (7 m, a vertical curve ahead)
-# and was taken for a rolling shutter there (2 of 10 seeds); by 15 m every such reading had
+# and was taken for a rolling shutter there (2 of 10 seeds); by 15 m both such readings had
 # fallen under the bar. A rolling shutter reads the same everywhere. The time bounds the wait
 # of a slow vehicle, whose shear is small.
 _FOUND_METRES = 15.0
@@ -365,7 +365,7 @@ class ShutterWatch:
     :data:`_FOUND_PAIRS` pairs and :data:`_FOUND_METRES` of road (or :data:`_FOUND_SECONDS`)
     on: on 43 rendered global-shutter drives that bound, the lower of the two, then reached
     8.2 ms once (the level camera, docs/rolling-shutter.md) and otherwise at most 4.5 ms; the 7
-    rolling shutters were found after 46-60 pairs. A global shutter is ruled out once either is
+    rolling shutters were found after 45-60 pairs. A global shutter is ruled out once either is
     under the bar by as much (from 40 pairs). Replaced, never changed in place.
     """
 
