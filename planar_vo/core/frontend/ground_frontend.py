@@ -17,6 +17,7 @@ from planar_vo.core.frontend.motion_search import GroundMotionSearch
 from planar_vo.core.frontend.tracker import Tracker
 from planar_vo.core.frontend.warp import GroundWarp
 from planar_vo.core.geometry.camera import CameraModel, Mounting, rays_through
+from planar_vo.core.geometry.se2 import step_length
 
 __all__ = ['GroundFrontEnd']
 
@@ -100,7 +101,7 @@ class GroundFrontEnd:
                                                                      shutter, dt)
         warp, first_row = None, 0
         if (predicted is not None and self.klt_prewarp and last_is_reference
-                and np.hypot(motion[0], motion[1]) >= _PREWARP_MIN_STEP):
+                and step_length(motion) >= _PREWARP_MIN_STEP):
             if self._warp is None or self._warp.camera is not self.camera:
                 self._warp = GroundWarp(self.camera)
             # Only the rows KLT's windows can reach: two windows above the highest track.

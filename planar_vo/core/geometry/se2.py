@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['compose', 'inverse_motion', 'circular_motion', 'off_arc', 'twist_motion',
-           'mean_twist', 'power']
+__all__ = ['compose', 'inverse_motion', 'circular_motion', 'off_arc', 'step_length',
+           'twist_motion', 'mean_twist', 'power']
 
 
 def compose(
@@ -47,6 +47,11 @@ def off_arc(motion: np.ndarray) -> float:
     """
     x, y, yaw = motion
     return abs(float(y - x * np.tan(yaw / 2.0)))
+
+
+def step_length(motion: np.ndarray) -> float:
+    """How far (m) a planar motion (x, y, yaw) moves base_link: its translation's length."""
+    return float(np.hypot(motion[0], motion[1]))
 
 
 def twist_motion(twist: np.ndarray, dt: float) -> np.ndarray:

@@ -29,7 +29,7 @@ from planar_vo.core.estimation.local_ground import (
 )
 from planar_vo.core.estimation.ransac import RansacResult, TransferModel
 from planar_vo.core.geometry.camera import Mounting
-from planar_vo.core.geometry.se2 import off_arc
+from planar_vo.core.geometry.se2 import off_arc, step_length
 from planar_vo.core.odometry.attitude_filter import JOLT_SIGMAS, jolt_threshold
 from planar_vo.core.odometry.bumps_ahead import BumpsAhead
 from planar_vo.core.odometry.covariance import correlated_covariance
@@ -319,7 +319,7 @@ class LocalGroundFilter:
         dt = max(dt, 1e-3)
         camera = self.tilted(mounting)
         hinge = self._surface_hinge()
-        travel = float(np.hypot(est.motion[0], est.motion[1]))
+        travel = step_length(est.motion)
         step = np.maximum(_SURFACE_PER_METRE * travel, _SURFACE_FLOOR)
         prior = GroundPrior(np.diag(self.rate2 * dt * dt), self.surface,
                             self.surface_cov + np.diag(step ** 2))
@@ -457,7 +457,7 @@ class LocalGroundFilter:
         """
         args = (motion, v1, m2, camera, prior, focal_px, hinge)
         options = dict(dt=dt, inlier_threshold=inlier_threshold, start_threshold=start_threshold)
-        travel = float(np.hypot(motion[0], motion[1]))
+        travel = step_length(motion)
         bound = max(_SLIDE_SHARE * travel, _SLIDE_FLOOR)
         held = dict(options, arc_sigma=_HELD_SHARE * bound)
 
@@ -506,7 +506,7 @@ class LocalGroundFilter:
             motion, v1, m2, camera, prior, focal_px=focal_px,
             threshold_px=inlier_threshold, start_threshold_px=start_threshold,
             hinge=hinge, cauchy=_CAUCHY, arc_sigma=arc_sigma)
-        travel = float(np.hypot(motion[0], motion[1]))
+        travel = step_length(motion)
         if (self._wheel_lift(fit.rotation, dt, travel) <= _IRREGULAR_LIFT
                 and not self._height_held_down(fit, dt)):
             return fit, prior

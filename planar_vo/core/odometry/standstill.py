@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planar_vo.core.geometry.se2 import step_length
+
 __all__ = ['Standstill', 'HeldReference', 'ENTER_CHI2', 'EXIT_CHI2', 'TWIST_SIGMA',
            'zero_motion_chi2']
 
@@ -93,8 +95,8 @@ class Standstill:
         the test) where the local ground saw its 0.32 m: held, the tracks were lost.
         """
         self.chi2 = zero_motion_chi2(motion, covariance)
-        return (self.chi2 < self.enter_chi2 and _step(motion) < MAX_STILL_STEP
-                and (refined is None or _step(refined) < MAX_STILL_STEP))
+        return (self.chi2 < self.enter_chi2 and step_length(motion) < MAX_STILL_STEP
+                and (refined is None or step_length(refined) < MAX_STILL_STEP))
 
     def moved(self, motion: np.ndarray, covariance: np.ndarray) -> bool:
         """True when the motion since the held reference is not zero (stationary -> moving)."""
@@ -120,8 +122,3 @@ class Standstill:
     def twist_covariance() -> np.ndarray:
         """The published twist's covariance (3, 3) while stationary."""
         return np.diag(np.square(TWIST_SIGMA))
-
-
-def _step(motion: np.ndarray) -> float:
-    """How far a planar motion (x, y, yaw) moves base_link, m."""
-    return float(np.hypot(motion[0], motion[1]))
