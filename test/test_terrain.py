@@ -378,18 +378,32 @@ ROBOT_MOUNT = synth.CameraMount(x=0.15, y=0.0, height=0.35, roll=0.0, pitch=np.r
                                 yaw=0.0)
 
 
-@functools.cache
+def _read_only(array: np.ndarray) -> np.ndarray:
+    """``array``, which may no longer be written: it is shared between tests."""
+    array.setflags(write=False)
+    return array
+
+
 def _render(terrain, frames=100, vehicle='car', mount=None):
     """A short 20 Hz drive over ``terrain`` (376x240, the default path; a car's camera 1.1 m
     up, 8 deg down, 1.2 m ahead of the rear axle, or ROBOT_MOUNT on a differential-drive
-    robot, unless ``mount``): (camera model, mounting, images, planar truth, twist)."""
+    robot, unless ``mount``): (camera model, mounting, images, planar truth, twist).
+
+    Rendered once per module (several tests replay the same drive): the arrays are read-only.
+    """
+    return _rendered(terrain, frames, vehicle, mount or (CAR_MOUNT if vehicle == 'car'
+                                                         else ROBOT_MOUNT))
+
+
+@functools.cache
+def _rendered(terrain, frames, vehicle, mount):
     camera = synth.SynthCamera.scaled(376, 240)
-    mount = mount or (CAR_MOUNT if vehicle == 'car' else ROBOT_MOUNT)
     renderer, traj = synth.render_scenario('default', frames, 0, rate=20.0, camera=camera,
                                            mounting=mount, terrain=terrain, vehicle=vehicle)
-    images = [renderer.render_frame(traj, k) for k in range(frames)]
+    images = tuple(_read_only(renderer.render_frame(traj, k)) for k in range(frames))
     twist = np.c_[traj.v, np.zeros_like(traj.v), traj.omega]  # the body's, at each stamp
-    return synth_camera_model(renderer), mount, images, np.c_[traj.x, traj.y, traj.yaw], twist
+    truth = np.c_[traj.x, traj.y, traj.yaw]
+    return synth_camera_model(renderer), mount, images, _read_only(truth), _read_only(twist)
 
 
 @functools.cache
