@@ -14,6 +14,24 @@ DOCS = sorted((ROOT / 'docs').glob('*.md'))
 # [text](target) and ![alt](target); the target ends at whitespace or ')'.
 _LINK = re.compile(r'!?\[[^\]]*\]\(\s*<?([^)\s>]+)>?(?:\s+"[^"]*")?\s*\)')
 _FENCE = re.compile(r'^(```|~~~).*?^\1', re.S | re.M)
+_HEADING = re.compile(r'^#{1,6}[ \t]+(.+?)[ \t#]*$', re.M)
+
+
+def _anchors(page: Path) -> set[str]:
+    """The anchors GitHub gives the headings of a Markdown ``page``.
+
+    Lower case, punctuation but '-' and '_' dropped, spaces made '-'; a repeated heading gets
+    '-1', '-2', ...
+    """
+    seen: dict[str, int] = {}
+    anchors = set()
+    for title in _HEADING.findall(_FENCE.sub('', page.read_text())):
+        title = re.sub(r'\[([^\]]*)\]\([^)]*\)', r'\1', title).replace('`', '')  # links, code
+        slug = re.sub(r'[^\w\- ]', '', title.strip().lower()).replace(' ', '-')
+        count = seen.get(slug, 0)
+        seen[slug] = count + 1
+        anchors.add(slug if count == 0 else f'{slug}-{count}')
+    return anchors
 
 
 def test_parameters_md_is_the_schema_rendered():
@@ -42,6 +60,21 @@ def test_relative_links_point_to_existing_files(page):
         if not (page.parent / path).exists():
             dead.append(target)
     assert not dead, f'{page.name}: links to missing files: {dead}'
+
+
+@pytest.mark.parametrize('page', [README, *DOCS], ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_links_to_a_section_find_its_heading(page):
+    """``page.md#section`` and ``#section`` name a heading that is there (sections move)."""
+    text = _FENCE.sub('', page.read_text())
+    dead = []
+    for target in _LINK.findall(text):
+        path, _, anchor = unquote(target).partition('#')
+        if not anchor or re.match(r'^[a-z][a-z0-9+.-]*:', target, re.I):
+            continue
+        linked = page if not path else page.parent / path
+        if linked.suffix == '.md' and linked.exists() and anchor not in _anchors(linked):
+            dead.append(target)
+    assert not dead, f'{page.name}: links to sections that are not there: {dead}'
 
 
 def test_readme_is_short_and_names_the_two_commands():
