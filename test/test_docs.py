@@ -10,7 +10,7 @@ from planar_vo.core import config
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / 'README.md'
-DOCS = sorted((ROOT / 'docs').glob('*.md'))
+DOCS = [*sorted((ROOT / 'docs').glob('*.md')), ROOT / 'bags' / 'README.md']
 # [text](target) and ![alt](target); the target ends at whitespace or ')'.
 _LINK = re.compile(r'!?\[[^\]]*\]\(\s*<?([^)\s>]+)>?(?:\s+"[^"]*")?\s*\)')
 _FENCE = re.compile(r'^(```|~~~).*?^\1', re.S | re.M)
