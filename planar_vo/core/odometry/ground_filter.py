@@ -77,7 +77,7 @@ _IRREGULAR_LIFT = 0.01  # m: a wheel lifted this far makes the ground irregular
 # before (0.5 mm a frame at 20 Hz), held the rise back and the steps came out 5-10 mm short for
 # five frames at each axle. When the pair's own reading of the height change is beyond
 # _RISE_SIGMAS of that rate and _RISE_FLOOR, the pair is refitted as for a lift. Stop 37:
-# that drive 0.235 -> 0.126 %, the 34 drives of docs/terrain.md 4.533 -> 4.516 (none by 0.02);
+# that drive 0.235 -> 0.126 %, 34 drives (docs/terrain-notes.md) 4.533 -> 4.516 (none by 0.02);
 # 3 or 5 sigmas: 0.115 / 0.114, 8: 0.239 again.
 _RISE_SIGMAS = 4.0
 _RISE_FLOOR = 0.01  # m (0.005: the same)
@@ -135,7 +135,7 @@ _DROP_RISE_SHARE = 0.3
 # information (they hold the yaw best), and at least _KEPT_AT_LEAST of the tracks are kept
 # (reversing, or a higher camera, most of them are far). Measured on 42 rendered drives (a
 # car's camera 1.1 m up, its view 1.5-5.2 m ahead): t_rel summed 6.18 -> 5.04 %, the flat
-# ones unchanged; 8 drives rendered after the choice 1.50 -> 1.40 (docs/terrain.md). A cut
+# ones unchanged; 8 drives rendered after the choice 1.50 -> 1.40 (docs/terrain-notes.md). A cut
 # at 4.1 m everywhere cost the flat bags/default 0.023 -> 0.036 %; at 3.6 m two drives lost
 # their yaw (0.66, 0.54 %); at 4.6 m the sum was 5.85.
 _UNEVEN_REACH = 4.1
@@ -148,7 +148,7 @@ _KEPT_AT_LEAST = 0.75
 # the jolt's fit replaces it when that one keeps to an arc. Over 50 rendered drives the
 # fits' largest slide was 3 % of the step, but for six of 6-12 % on bumps (one kept 7 of 148
 # tracks; one a 1.05 deg yaw error at 10 Hz). That drive 0.51 -> 0.46 %, r_rel 1.02 -> 0.29
-# deg/100 m; a bumps drive 0.20 -> 0.15 %; the 42 drives of docs/terrain.md 5.04 -> 5.05 in sum.
+# deg/100 m; a bumps drive 0.20 -> 0.15 %; 42 drives (terrain-notes.md) 5.04 -> 5.05 in sum.
 # When the jolt's fit slides too, through a jolt (a wheel lifted), the pair is refined again
 # held to its arc within _HELD_SHARE of the bound: the paper's circular motion, where the
 # tracks cannot tell a sideways slide from a roll and a turn (45 of 233 tracks left as a

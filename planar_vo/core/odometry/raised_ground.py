@@ -11,7 +11,7 @@ flow is ``h / (h - dz)`` times the road's (``h`` the camera's height), so a flow
 is ``dz = h e / (1 + e)``, the point ``1 / (1 + e)`` of the way to where its ray meets the
 wheels' plane. The samples move with the vehicle (2D, with its yaw); each front wheel reads the
 samples in its own cell. On 34 rendered drives t_rel summed 3.47 -> 3.22 % (bumps crossed at
-40-65 deg, seeds 4 / 7: 0.163 / 0.125 -> 0.094 / 0.075 %; docs/terrain.md, stop 41). Numpy
+40-65 deg, seeds 4 / 7: 0.163 / 0.125 -> 0.094 / 0.075 %; docs/terrain-notes.md, stop 41). Numpy
 only; no ROS.
 """
 
