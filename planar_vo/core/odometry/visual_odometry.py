@@ -48,7 +48,7 @@ from planar_vo.core.estimation.rolling_shutter import (
 from planar_vo.core.frontend.ground_frontend import GroundFrontEnd
 from planar_vo.core.frontend.tracker import Tracker
 from planar_vo.core.geometry.camera import CameraModel, Mounting, bin_image, rays_through
-from planar_vo.core.geometry.se2 import compose, inverse_motion, twist_motion
+from planar_vo.core.geometry.se2 import compose, inverse_motion, step_length, twist_motion
 from planar_vo.core.odometry.attitude_filter import AttitudeFilter, AttitudeNoise
 from planar_vo.core.odometry.frame_gate import FrameGate
 from planar_vo.core.odometry.ground_filter import LocalGroundFilter
@@ -753,7 +753,7 @@ class VisualOdometry:
         surface = self._readout_on_surface(motion, deskew)
         if plane is None or surface is None:
             return
-        watch = self.shutter_watch.add(plane, surface, dt, float(np.hypot(*motion[:2])))
+        watch = self.shutter_watch.add(plane, surface, dt, step_length(motion))
         if watch.ruled_out():
             self.shutter_watch = None
             return
