@@ -71,12 +71,15 @@ def test_the_front_wheels_on_a_bump_need_the_road_s_height_at_the_hinge():
 
 
 def test_a_bump_is_remembered_until_it_has_passed_and_found_once():
-    """Bands near a remembered bump are that bump; moving on shifts it; it is forgotten once
-    past the camera's view, or when reversing. Its tracks are hidden, from a little before it
-    to ``reach``."""
+    """Bands near a remembered bump are that bump, which stands at their mean; moving on
+    shifts it; it is forgotten once past the camera's view, or when reversing. Its tracks are
+    hidden, from a little before it to ``reach``."""
     bumps = BumpsAhead().seen(np.array([6.1, 6.2, 6.3]), 0.5)
     assert bumps.ahead == (6.2,)
-    assert bumps.seen(np.array([5.0, 7.9]), 0.5).ahead == (6.2,)
+    again = bumps.seen(np.array([7.0, 7.2]), 0.5)  # one band at 7.1: the bump seen again
+    np.testing.assert_allclose(again.ahead, [(6.2 + 7.1) / 2])
+    np.testing.assert_allclose(again.seen(np.array([6.3]), 0.5).ahead, [(6.2 + 7.1 + 6.3) / 3])
+    np.testing.assert_allclose(bumps.seen(np.array([5.0, 7.9]), 0.5).ahead, [(6.2 + 5 + 7.9) / 3])
     assert bumps.seen(np.array([9.0]), 0.5).ahead == (6.2, 9.0)
     hidden = bumps.hides(np.array([5.0, 5.8, 6.2, 6.9, 7.1]), 0.75)
     np.testing.assert_array_equal(hidden, [False, True, True, True, False])
