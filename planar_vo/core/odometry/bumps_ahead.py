@@ -31,9 +31,10 @@ _BEFORE = 0.6
 # comes closer 0.3-0.7 m past it), so the window its tracks are hidden in, placed for a band
 # past the bump, left the rays of its far face in the fit: their faster flow made the steps
 # beside it long (+2 to +7 mm a pair on an all-four drive). Kept where first seen, as before
-# stop 50, 59 rendered drives summed 14.41 % t_rel; at the mean 13.86 (the two worst all-four
-# drives 0.437 / 0.349 -> 0.166 / 0.147, 7 others up to 0.05 worse); at the latest band as
-# good as the mean on 12 of them, but the bumps drives 0.062 / 0.111 -> 0.097 / 0.227.
+# stop 50, 79 rendered drives summed 19.98 % t_rel; at the mean 19.44 (the two worst all-four
+# drives 0.437 / 0.349 -> 0.166 / 0.147; 12 others worse by over 0.02, at most 0.196 ->
+# 0.325; bumps alone 0.047-0.111 -> 0.067-0.113); at the latest band as good on the all-four
+# drives, but the bumps drives 0.062 / 0.111 -> 0.097 / 0.227.
 _SAME = 2.0
 _GONE = 1.0  # m past the camera: passed under its view, forgotten
 # The front wheels are on a remembered bump from this far before the front axle to this far
