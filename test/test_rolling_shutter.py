@@ -278,7 +278,7 @@ def test_a_rolling_shutter_drive_is_as_accurate_as_a_global_shutter(scenario, ra
         assert all(r.status in ('first', 'ok') for r in results), name
         runs[name] = metrics(np.array([r.pose for r in results]), truth)
     # The global shutter, watched with the shipped defaults, was not taken for a rolling one.
-    assert kept[0].readout_calibrator is None and kept[0].shutter.global_shutter
+    assert kept[0].shutter_learning.calibrator is None and kept[0].shutter.global_shutter
     ours, gs, plain = runs['model'], runs['global'], runs['plain']
     assert ours['t_rel_percent'] < 1.5 * gs['t_rel_percent'], runs
     assert abs(ours['scale_ratio'] - 1) < 0.002, runs

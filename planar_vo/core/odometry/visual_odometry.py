@@ -35,15 +35,10 @@ from planar_vo.core.estimation.ransac import (
     transfer_errors,
 )
 from planar_vo.core.estimation.rolling_shutter import (
-    ReadoutCalibrator,
     ReadoutEstimate,
     ShutterModel,
-    ShutterWatch,
     accelerated,
     at_stamp,
-    readout_advice,
-    readout_measurement,
-    readout_on_surface,
 )
 from planar_vo.core.frontend.ground_frontend import GroundFrontEnd
 from planar_vo.core.frontend.tracker import Tracker
@@ -54,6 +49,7 @@ from planar_vo.core.odometry.frame_gate import FrameGate
 from planar_vo.core.odometry.ground_filter import LocalGroundFilter
 from planar_vo.core.odometry.pose_integrator import PoseIntegrator
 from planar_vo.core.odometry.result import FrameResult, FrameStatus
+from planar_vo.core.odometry.shutter_learning import ShutterLearning, SurfaceResiduals
 from planar_vo.core.odometry.standstill import HeldReference, Standstill
 
 __all__ = ['VisualOdometry']
@@ -120,15 +116,11 @@ class VisualOdometry:
                          'time_jumps': 0, 'blank': 0, 'skipped': 0, 'stationary': 0}
         self._rng = np.random.default_rng(0)
         self.configured_mounting = mounting
-        # The shutter in use (the learned readout once known) and what learns it.
-        self.configured_shutter = ShutterModel(rolling_shutter_readout, rolling_shutter_stamp)
-        self.shutter = self.configured_shutter
-        self.readout_calibrator = (ReadoutCalibrator(rolling_shutter_readout)
-                                   if learn_rolling_shutter else None)
-        # A global shutter configured, on the local ground: watched for a rolling one.
-        self.shutter_watch = (ShutterWatch() if detect_rolling_shutter and ground is not None
-                              and not learn_rolling_shutter and rolling_shutter_readout == 0.0
-                              else None)
+        # The shutter in use (the learned readout once known) and what learns it; a global
+        # shutter configured, on the local ground, is watched for a rolling one.
+        self.shutter_learning = ShutterLearning(
+            rolling_shutter_readout, rolling_shutter_stamp, learn=learn_rolling_shutter,
+            watch=detect_rolling_shutter and ground is not None)
         self.image_binning = image_binning  # as configured (0: by the image's size)
         self.binning = binning_for(image_binning, camera.width, camera.height)
         self._update_geometry(camera.binned(self.binning), mounting, check_round_trip=True)
@@ -199,6 +191,11 @@ class VisualOdometry:
             self.ground.reset()
 
     @property
+    def shutter(self) -> ShutterModel:
+        """The rolling-shutter model in use (the learned readout once known)."""
+        return self.shutter_learning.shutter
+
+    @property
     def _tilt_filter(self) -> AttitudeFilter | LocalGroundFilter | None:
         """The part that estimates the camera's tilt and learns the mounting, if any."""
         return self.ground if self.ground is not None else self.attitude_filter
@@ -216,7 +213,7 @@ class VisualOdometry:
 
     def readout_estimate(self) -> ReadoutEstimate | None:
         """The rolling-shutter readout learned so far (None unless learn_rolling_shutter)."""
-        return None if self.readout_calibrator is None else self.readout_calibrator.estimate()
+        return self.shutter_learning.estimate()
 
     def mounting_diagnostics(self) -> tuple[dict[str, str], dict[str, str]]:
         """(key/values for diagnostics, advice per parameter the drive says is off).
@@ -226,16 +223,8 @@ class VisualOdometry:
         ground model's for a camera turned away from straight ahead).
         """
         values, advice = self._mounting_diagnostics()
-        advice = {**advice, **self._ground_advice()}
-        readout = self.readout_estimate()
-        if readout is not None:
-            configured = self.configured_shutter.readout
-            values['rolling_shutter_readout estimated (ms)'] = (
-                f'{1e3 * readout.readout:.2f} +- {1e3 * readout.std:.2f}')
-            values['rolling_shutter_readout configured (ms)'] = f'{1e3 * configured:.2f}'
-            values['rolling_shutter_readout in use (ms)'] = f'{1e3 * self.shutter.readout:.2f}'
-            advice = {**advice, **readout_advice(configured, readout)}
-        return values, advice
+        shutter_values, shutter_advice = self.shutter_learning.diagnostics()
+        return {**values, **shutter_values}, {**advice, **self._ground_advice(), **shutter_advice}
 
     def _ground_advice(self) -> dict[str, str]:
         """Advice when the local ground cannot hold as configured.
@@ -385,7 +374,7 @@ class VisualOdometry:
         """
         tilt = self._tilt_filter
         parts = (self.front, self.front.tracker, self.gate, self.integrator, self.standstill,
-                 tilt, None if tilt is None else tilt.calibrator)
+                 self.shutter_learning, tilt, None if tilt is None else tilt.calibrator)
         return (dict(vars(self)), dict(self.counters),
                 [(part, copy.copy(vars(part))) for part in parts if part is not None])
 
@@ -570,17 +559,17 @@ class VisualOdometry:
             return self._hold_still(stamp, t0, previous, est, stats)
         tilt = self._tilt_filter  # the readout learned or watched for, before it moves on
         refined = isinstance(tilt, LocalGroundFilter) and tilt.solution is not None
-        watched = self.shutter_watch is not None and refined
-        if self.readout_calibrator is not None or watched:
-            deskew = ((p1[ok], p2[ok]), (ref_px[ok, 1], cur_px[ok, 1]), dt, model,
-                      self._twist_rate())
-            if self.readout_calibrator is None:
+        if self.shutter_learning.wants(refined):
+            rows = (ref_px[ok, 1], cur_px[ok, 1])
+            deskew = ((p1[ok], p2[ok]), rows, dt, model, self._twist_rate())
+            if self.shutter_learning.calibrator is None:
                 self._watch_shutter(planar, est.motion, p1_ok, m2[ok], deskew)
             elif refined:
-                self._learn_readout_on_surface(est.motion, deskew)
+                self.shutter_learning.read_on_surface(
+                    self._surface_residuals(est.motion, deskew), dt)
             else:
-                self._learn_readout(planar, p1_ok, m2[ok], ref_px[ok, 1], cur_px[ok, 1], dt,
-                                    model)
+                self.shutter_learning.read_on_plane(planar, p1_ok, m2[ok], rows,
+                                                    self.camera.height, dt, model)
         self.integrator.add(start, stamp - start, step, est.covariance)
         if self.ground is not None:
             self.ground.advance(est.motion)
@@ -654,7 +643,7 @@ class VisualOdometry:
         take for the camera's pitch, and the readout measured through that pitch for none.
         """
         tilt = self._tilt_filter
-        held = copy.copy(tilt.calibrator) if self._learning_readout else None
+        held = copy.copy(tilt.calibrator) if self.shutter_learning.learning else None
         est, calibrated = tilt.refine(
             est, rays1, m2, self.mounting, model, dt=stamp - self._ref_stamp,
             inlier_threshold=self.inlier_threshold,
@@ -682,11 +671,6 @@ class VisualOdometry:
             vars(tilt.calibrator).clear()
             vars(tilt.calibrator).update(calibrator)
 
-    @property
-    def _learning_readout(self) -> bool:
-        """True while learn_rolling_shutter is on and the readout is not yet known."""
-        return self.readout_calibrator is not None and self.readout_calibrator.usable() is None
-
     def _hold_still(self, stamp: float, t0: float, previous: float, est: RansacResult,
                     stats: dict) -> FrameResult:
         """A frame of a stop: the pose held, the twist exactly zero, the reference kept."""
@@ -696,75 +680,28 @@ class VisualOdometry:
         self.counters['stationary'] += 1
         return self._result(stamp, FrameStatus.OK, t0, **stats)
 
-    def _learn_readout(self, est: RansacResult, p1: np.ndarray, m2: np.ndarray,
-                       v1: np.ndarray, v2: np.ndarray, dt: float, model: TransferModel) -> None:
-        """Add this pair's readout measurement; use the learned readout once known."""
-        measured = readout_measurement(est.motion, p1, m2, (v1, v2, self.camera.height, dt),
-                                       self.shutter, model, est.inliers)
-        if measured is None:
-            return
-        self._add_readout(*measured, dt)
-
-    def _add_readout(self, readout: float, variance: float, dt: float) -> None:
-        """Average in one pair's readout; use the learned readout once known."""
-        calibrator = copy.copy(self.readout_calibrator)  # replaced, never changed in place
-        calibrator.add(readout, variance, dt)
-        self._take_readout(calibrator)
-
-    def _take_readout(self, calibrator: ReadoutCalibrator) -> None:
-        """Learn the readout with ``calibrator``; use its readout once known."""
-        self.readout_calibrator = calibrator
-        usable = calibrator.usable()
-        if usable is not None:
-            self.shutter = ShutterModel(usable, self.shutter.stamp)
-
-    def _learn_readout_on_surface(self, motion: np.ndarray, deskew: tuple) -> None:
-        """Add this pair's readout measured through the local ground (see readout_on_surface).
+    def _surface_residuals(self, motion: np.ndarray, deskew: tuple) -> SurfaceResiduals:
+        """The local ground's residuals of this pair seen through a given shutter.
 
         ``deskew``: the ``points, rows, dt, model, rate`` of :meth:`_at_stamps`.
         """
-        measured = self._readout_on_surface(motion, deskew)
-        if measured is None:
-            return
-        self._add_readout(*measured, deskew[2])
-
-    def _readout_on_surface(self, motion: np.ndarray,
-                            deskew: tuple) -> tuple[float, float] | None:
-        """The pair's readout and its variance through the local ground, from the one in use."""
-        stamp_kind = self.shutter.stamp
-
-        def residuals(readout: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            shutter = ShutterModel(readout, stamp_kind)
+        def residuals(shutter: ShutterModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             return self._tilt_filter.residuals_without_curvature(
                 *self._at_stamps(motion, *deskew, shutter=shutter))
-
-        return readout_on_surface(residuals, self.shutter.readout)
+        return residuals
 
     def _watch_shutter(self, planar: RansacResult, motion: np.ndarray, p1: np.ndarray,
                        m2: np.ndarray, deskew: tuple) -> None:
-        """Add this pair's two readings to the watch; learn the readout once it is found.
-
-        From then on as with learn_rolling_shutter, from the readings through the local
-        ground so far (see ShutterWatch).
-        """
-        (v1, v2), dt, model = deskew[1], deskew[2], deskew[3]
-        plane = readout_measurement(planar.motion, p1, m2, (v1, v2, self.camera.height, dt),
-                                    self.shutter, model, planar.inliers)
-        surface = self._readout_on_surface(motion, deskew)
-        if plane is None or surface is None:
-            return
-        watch = self.shutter_watch.add(plane, surface, dt, step_length(motion))
-        if watch.ruled_out():
-            self.shutter_watch = None
-            return
-        if not watch.found():
-            self.shutter_watch = watch
-            return
-        self.shutter_watch = None
-        self._take_readout(watch.surface)
-        # What self-calibration learned so far, it learned through the shear: it starts over.
-        self._tilt_filter.calibrator = MountingCalibrator(self.configured_mounting)
-        self._use_mounting(self.configured_mounting)
+        """Add this pair's two readings to the watch (see ShutterLearning.watch_pair)."""
+        rows, dt, model = deskew[1], deskew[2], deskew[3]
+        found = self.shutter_learning.watch_pair(
+            planar, p1, m2, rows, self.camera.height, dt, model,
+            self._surface_residuals(motion, deskew), step_length(motion))
+        if found:
+            # What self-calibration learned so far, it learned through the shear: it starts
+            # over.
+            self._tilt_filter.calibrator = MountingCalibrator(self.configured_mounting)
+            self._use_mounting(self.configured_mounting)
 
     def _require_inliers(self, inliers: np.ndarray) -> None:
         """Raise PoseEstimationError when fewer than ``min_inliers`` fit."""
