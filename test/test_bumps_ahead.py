@@ -89,6 +89,28 @@ def test_a_bump_is_remembered_until_it_has_passed_and_found_once():
     assert bumps.moved(-0.1, camera_x=1.2).ahead == ()  # reversing: it was seen going forward
 
 
+def test_where_the_road_curves_a_band_is_a_bump_once_a_later_pair_shows_it_again():
+    """A hill's bend can make one band: where the road curves a band is only a candidate,
+    moved on with the vehicle; a band of a later pair within 0.6 m of it makes it a bump at
+    their mean. Two bands of one pair do not confirm each other; a candidate past the camera's
+    view, or when reversing, is forgotten. A band near a known bump still moves it."""
+    once = BumpsAhead().seen(np.array([6.1, 6.2, 6.3]), 0.5, confirm=True)
+    assert once.ahead == () and once.candidates == (6.2,)
+    assert BumpsAhead().seen(np.array([6.2, 6.6]), 0.5, confirm=True).ahead == ()
+    moved = once.moved(0.3, camera_x=1.2)
+    np.testing.assert_allclose(moved.candidates, [5.9])
+    twice = moved.seen(np.array([6.2, 6.4]), 0.5, confirm=True)  # a band at 6.3
+    np.testing.assert_allclose(twice.ahead, [(5.9 + 6.3) / 2])
+    assert twice.sightings == (2,) and twice.candidates == ()
+    elsewhere = moved.seen(np.array([7.0, 7.1]), 0.5, confirm=True)  # 1.15 m from it
+    assert elsewhere.ahead == ()
+    np.testing.assert_allclose(elsewhere.candidates, [5.9, 7.05])
+    assert once.moved(4.1, camera_x=1.2).candidates == ()  # 2.1 m ahead: past the view
+    assert once.moved(-0.1, camera_x=1.2).candidates == ()
+    known = BumpsAhead((6.0,)).seen(np.array([6.5]), 0.5, confirm=True)
+    np.testing.assert_allclose(known.ahead, [6.25])
+
+
 def test_the_front_wheels_height_is_summed_only_on_a_remembered_bump():
     """A lift sums into the front wheels' height while a bump is at the front axle; elsewhere
     (a hill's pitch) it does not, and the height fades once the wheels are off."""
