@@ -107,11 +107,12 @@ class BumpsAhead:
                 continue
             if any(abs(centre - x) < _SAME for x in ahead[len(self.ahead):]):
                 continue
-            earlier = [x for x in self.candidates if abs(centre - x) < _CONFIRM]
             if not confirm:
                 ahead.append(centre)
                 sightings.append(1)
-            elif earlier:
+                continue
+            earlier = [x for x in self.candidates if abs(centre - x) < _CONFIRM]
+            if earlier:
                 ahead.append(0.5 * (earlier[0] + centre))
                 sightings.append(2)
                 candidates.remove(earlier[0])
