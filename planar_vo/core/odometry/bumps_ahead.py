@@ -18,6 +18,7 @@ road's) while a remembered bump is at the front axle. Numpy only; no ROS.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -136,10 +137,8 @@ class BumpsAhead:
         ``rise``: the front axle's rise above the smooth road (m) if a wheel lifted, else None.
         """
         if rise is not None and self.at_front(hinge):
-            return BumpsAhead(self.ahead, self.front_height + rise, self.sightings,
-                              self.candidates)
-        return BumpsAhead(self.ahead, self.front_height * _FRONT_DECAY, self.sightings,
-                          self.candidates)
+            return dataclasses.replace(self, front_height=self.front_height + rise)
+        return dataclasses.replace(self, front_height=self.front_height * _FRONT_DECAY)
 
     def moved(self, travel: float, camera_x: float) -> BumpsAhead:
         """Self in base_link after ``travel`` m forward.
