@@ -141,6 +141,6 @@ def test_a_bump_coming_into_view_is_found_where_it_is():
         ground.advance(result.motion)
         ahead = bump_x - (position + 0.3)
         if ahead < 6.0:
-            assert len(ground.bumps.ahead) == 1
-            assert abs(ground.bumps.ahead[0] - ahead) < 0.5
+            assert len(ground.ahead.bumps.ahead) == 1
+            assert abs(ground.ahead.bumps.ahead[0] - ahead) < 0.5
     assert wheel_plane_distance(MOUNT, v1).max() > 6.0

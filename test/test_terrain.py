@@ -27,6 +27,7 @@ from planar_vo.core.metrics import metrics
 from planar_vo.core.odometry import VisualOdometry
 from planar_vo.core.odometry.bumps_ahead import BumpsAhead
 from planar_vo.core.odometry.ground_filter import LocalGroundFilter
+from planar_vo.core.odometry.road_ahead import RoadAhead
 from planar_vo.core.odometry.surface_bands import BAND_REACH, off_surface_bands
 from planar_vo.synth.terrain import TerrainShape
 from planar_vo.tools.experiments.mounting_experiment import plain_opencv_path
@@ -154,8 +155,8 @@ def test_a_remembered_bump_that_leaves_too_few_tracks_is_fitted_with_its_tracks(
     m1, m2 = np.r_[m1, o1], np.r_[m2, o2]
     ground = LocalGroundFilter(MOUNT, rates=np.array([0.5, 0.5, 0.3]), wheelbase=HINGE,
                                self_calibrate=False)
-    ground.bumps = BumpsAhead((3.9,))
-    assert np.count_nonzero(~ground.bumps.hides(x, BAND_REACH)) == 0
+    ground.ahead = RoadAhead(BumpsAhead((3.9,)))
+    assert np.count_nonzero(~ground.ahead.bumps.hides(x, BAND_REACH)) == 0
     model = TransferModel(*MOUNT.ground_to_optical(), 500.0, MOUNT)
     start = RansacResult(step + [0.01, 0.0, 0.0], np.eye(3) * 1e-4, np.ones(len(m1), bool), 1,
                          0.3)
@@ -569,7 +570,7 @@ def test_the_front_wheels_climb_of_a_bump_seen_ahead_is_read_as_it_happens():
     heights = []
     for k, image in enumerate(images):
         vo.process(image, k / 20.0)
-        heights.append(vo.ground.bumps.front_height)
+        heights.append(vo.ground.ahead.bumps.front_height)
     pose = traj.pose3d
     front_x = (pose.position + pose.rotation @ np.array([vo.ground.wheelbase, 0.0, 0.0]))[:, 0]
     bumps = renderer.terrain

@@ -45,7 +45,7 @@ _SAME = 2.0
 # all-four drives, every false band alone). The search used to stop where the road curves
 # over 0.01 /m, and over hills half the bumps were never remembered; searched there with one
 # band enough, bands of hills passed for bumps (59 drives 14.41 -> 15.33 % summed).
-# Confirmed, see ground_filter's _BUMP_CURVATURE; within 0.35 m as good, within 1 m 93
+# Confirmed, see road_ahead's _BUMP_CURVATURE; within 0.35 m as good, within 1 m 93
 # drives 20.46 -> 20.70 % summed.
 _CONFIRM = 0.6
 _GONE = 1.0  # m past the camera: passed under its view, forgotten

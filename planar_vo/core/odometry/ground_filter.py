@@ -31,16 +31,12 @@ from planar_vo.core.estimation.ransac import RansacResult, TransferModel
 from planar_vo.core.geometry.camera import Mounting
 from planar_vo.core.geometry.se2 import off_arc, step_length
 from planar_vo.core.odometry.attitude_filter import JOLT_SIGMAS, jolt_threshold
-from planar_vo.core.odometry.bumps_ahead import BumpsAhead
 from planar_vo.core.odometry.covariance import correlated_covariance
-from planar_vo.core.odometry.raised_ground import RaisedGround
+from planar_vo.core.odometry.road_ahead import RoadAhead
 from planar_vo.core.odometry.road_profile import SAMPLES_AHEAD, RoadProfile
 from planar_vo.core.odometry.sprung_body import SprungBody
 from planar_vo.core.odometry.surface_bands import (
-    BAND_M,
     BAND_REACH,
-    bands_of,
-    flow_excess,
     off_surface_bands,
     refit_consistent,
     side_offsets,
@@ -102,24 +98,6 @@ _HISTORY_TRAVEL = 0.01  # m: a pair this far forward gives the history's reading
 # corrected it (stop 44: 20 drives 5.570 -> 5.379 in sum, that drive 0.225 -> 0.196 %; the
 # mounting 1 deg off 0.058 -> 0.068; 3 m and 10 m the same).
 _UNREAD_TRAVEL = 5.0
-# Bumps are looked for (bands_of) once the rates are learned, on pairs driving forward
-# without a lift, over a surface whose curvatures are under _RAISED_CURVATURE; over
-# _BUMP_CURVATURE (1/m) a band is a bump only once a later pair's band confirms it
-# (BumpsAhead, _CONFIRM). With the surface through the centre line, one band at 0.01 /m found
-# bands of hills for bumps (all four 0.18 -> 0.28 %); through the wheels' contacts (stop 36),
-# 34 rendered drives 5.10 -> 4.78 in sum at 0.01, 4.89 at 0.0075, 4.84 at 0.015, 5.14 at 0.02.
-# Stop 51, bands confirmed over 0.01 (none looked for there before): 93 drives 20.89 -> 20.46
-# % summed (14 better by over 0.02, 13 worse), the 20 held-out all-four sprung drives 14 -> 18
-# of 20 at or under 0.2 %; searched on to 0.03 or 0.05 /m, 20.41 and 20.65.
-_BUMP_PAIRS = 10
-_BUMP_CURVATURE = 0.01
-# The raised ground's samples (RaisedGround) are taken on road curved up to this (1/m): a cell
-# counts only from several samples of several pairs, which a hill's bend does not make. The 60
-# rendered drives 5.907 -> 5.742 in sum at 0.02 (5.779 at 0.015, 5.873 at 0.03; with RANSAC's
-# seed 1 5.998 -> 5.877), steep hills with bumps 0.363 -> 0.318; two 10 Hz drives worse.
-_RAISED_CURVATURE = 0.02
-# m: the front wheels' height on a bump that counts as known (from a band, or to sample under)
-_KNOWN_HEIGHT = 0.005
 # A front wheel coming down off a bump: at the pair's first frame it stood on the bump, so the
 # road past the front axle lay below the wheels' plane by its height, which the raised ground
 # or a band gives only where they saw the bump (a bump crossed at an angle, one wheel on it:
@@ -252,10 +230,7 @@ class LocalGroundFilter:
         self.last_fit: tuple | None = None  # what the last refinement saw, for advance()
         self.solution: tuple | None = None  # the last pair's (params, camera, hinge, weights)
         self.wheel_lift = 0.0  # m: how far the last pair's jolt lifted a wheel off the road
-        self.bumps = BumpsAhead()
-        self.raised = RaisedGround()  # ground seen above the road, until the wheels pass it
-        self._raised_seen: RaisedGround | None = None  # with the last pair's samples
-        self._under_cache: tuple | None = None  # (raised, hinge, the wheels' heights)
+        self.ahead = RoadAhead()  # bumps and raised ground, until the wheels pass them
         self.history_reads = False  # the road's history has read the camera's tilt
         self.travel_unread = 0.0  # m driven since the restart while the history could not read
         self.seen_tilt: np.ndarray | None = None  # its last reading, if believable
@@ -354,10 +329,11 @@ class LocalGroundFilter:
             self.side_drift = self.side_drift + min(travel / _SIDE_MEMORY_M, 1.0) * (
                 sides - self.side_drift)
         if on_bumps.any():
-            rough = rough | self._samples_near(np.array(self.bumps.ahead))
+            rough = rough | self._samples_near(np.array(self.ahead.bumps.ahead))
         lifted = self._wheel_lift(fit.rotation, dt, travel)
-        self.bumps = self._bumps_after(fit, prior, lifted, rays1, v1, m2, camera, hinge,
-                                       distance)
+        self.ahead = self.ahead.after_pair(
+            fit, prior.surface, lifted=lifted > _IRREGULAR_LIFT, rate_samples=self.rate_samples,
+            rays1=rays1, v1=v1, m2=m2, camera=camera, hinge=hinge, distance=distance)
         self.surface, self.surface_cov = fit.surface, fit.surface_cov
         # Weight 0.1: a residual 3 sigma off the surface (1 % of Gaussian noise).
         self.off_surface = float(np.mean(fit.weights[fit.inliers] < 0.1))
@@ -444,7 +420,7 @@ class LocalGroundFilter:
         beyond = away.any() & (np.abs(wheel_plane_lateral(camera, v1)) > self.half_width)
         if np.count_nonzero(~beyond) < keep:
             beyond[:] = False
-        on_bumps = self.bumps.hides(distance, BAND_REACH) & ~beyond
+        on_bumps = self.ahead.bumps.hides(distance, BAND_REACH) & ~beyond
         if np.count_nonzero(~(beyond | on_bumps)) < keep:
             on_bumps[:] = False
         return beyond, on_bumps
@@ -614,32 +590,8 @@ class LocalGroundFilter:
         return dataclasses.replace(again, inliers=inliers, weights=weights), rough
 
     def _surface_hinge(self) -> Hinge:
-        """Where the surface meets the front wheels, and how high (one on a bump ahead).
-
-        A bump found ahead as a band (square across the path) gives the front wheels' height
-        while they are on it; otherwise the raised ground seen under each front wheel does (a
-        bump crossed at an angle: 34 rendered drives 3.47 -> 3.22 % t_rel summed, stop 41).
-        """
-        height = -self.bumps.front_height
-        if not (self.bumps.at_front(self.hinge) or self.bumps.front_height > _KNOWN_HEIGHT):
-            under = self._raised_under_wheels()
-            if np.any(under > 0.0):
-                height = min(height, -float(np.mean(under)))
-        return Hinge(self.hinge, self.track, height)
-
-    def _raised_under_wheels(self) -> np.ndarray:
-        """How far (m) the ground under the left and the right front wheel is raised (2,).
-
-        Read once per pair (the samples change only in advance()): the surface's hinge is asked
-        for several times a pair.
-        """
-        key = (self.hinge, self.track, self.camera_height)
-        cached = self._under_cache
-        if cached is None or cached[0] is not self.raised or cached[1] != key:
-            wheels = np.array([[self.hinge, 0.5 * self.track], [self.hinge, -0.5 * self.track]])
-            self._under_cache = (self.raised, key,
-                                 self.raised.height_at(wheels, self.camera_height))
-        return self._under_cache[2]
+        """Where the surface meets the front wheels, and how high (one on a bump ahead)."""
+        return self.ahead.hinge(self.hinge, self.track, self.camera_height)
 
     def _samples_near(self, xs: np.ndarray) -> np.ndarray:
         """Which of the road history's samples ahead lie near a band or bump.
@@ -648,32 +600,6 @@ class LocalGroundFilter:
         """
         ahead = self.hinge + SAMPLES_AHEAD
         return np.any(np.abs(ahead[:, None] - xs[None, :]) < BAND_REACH, axis=1)
-
-    def _bumps_after(self, fit: LocalGroundResult, prior: GroundPrior, lifted: float,
-                     rays1: np.ndarray, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
-                     hinge: Hinge, distance: np.ndarray) -> BumpsAhead:
-        """The bumps ahead after the pair: those it shows, and the front wheels' height."""
-        bumps = self.bumps
-        curvature = float(np.max(np.abs(prior.surface[2:])))
-        if (lifted <= _IRREGULAR_LIFT and self.rate_samples >= _BUMP_PAIRS
-                and fit.motion[0] > 0.0 and curvature < _RAISED_CURVATURE):
-            excess, usable = flow_excess(fit.motion, fit.rotation, prior.surface, v1,
-                                         rays1[:, :2] / rays1[:, 2:], m2, camera, hinge)
-            bumps = bumps.seen(distance[bands_of(excess, usable, distance)], BAND_M,
-                               confirm=curvature >= _BUMP_CURVATURE)
-            if abs(hinge.height) < _KNOWN_HEIGHT:
-                # Samples only while the front wheels are on the road: on a bump the surface's
-                # hinge is only as right as the height it was given.
-                ground = np.c_[distance, wheel_plane_lateral(camera, v1)][usable]
-                self._raised_seen = self.raised.seen(camera.position, ground, excess[usable],
-                                                     self.hinge)
-        rise = None
-        if lifted > _IRREGULAR_LIFT:
-            # The front axle's height change in the pair, less the smooth road's there.
-            ahead = float(fit.motion[0])
-            smooth = fit.surface[0] * ahead + 0.5 * fit.surface[2] * ahead * ahead
-            rise = float(fit.rotation[2] - self.hinge * np.sin(fit.rotation[1]) - smooth)
-        return bumps.lifted(rise, self.hinge)
 
     def advance(self, motion: np.ndarray) -> None:
         """The last refined pair's motion was taken: remember its road, move on.
@@ -685,11 +611,8 @@ class LocalGroundFilter:
         if self.last_fit is None:
             return
         rotation, surface, surface_cov, used, dt, focal_px, camera = self.last_fit
-        self.bumps = self.bumps.moved(float(motion[0]), float(camera[0]))
+        self.ahead = self.ahead.moved(motion, float(camera[0]), self.hinge)
         self.camera_height = float(camera[2])
-        seen = self.raised if self._raised_seen is None else self._raised_seen
-        self.raised, self._raised_seen = seen.moved(np.asarray(motion, dtype=float),
-                                                    self.hinge), None
         self.last_fit = self.solution = None
         turn = self._pitch_beyond_road(rotation, float(motion[0]))  # the body's, if no lift
         if turn is None or self.wheel_lift > _IRREGULAR_LIFT:
@@ -794,7 +717,7 @@ class LocalGroundFilter:
             'tracks used up to (m ahead)': (
                 'all' if np.isinf(self.used_reach) else f'{self.used_reach:.1f}'),
             'ground ahead irregular': str(self.irregular),
-            'bumps ahead (m)': ', '.join(f'{x:.1f}' for x in self.bumps.ahead) or 'none',
+            'bumps ahead (m)': ', '.join(f'{x:.1f}' for x in self.ahead.bumps.ahead) or 'none',
             'front wheels above the road ahead (cm)': f'{-100 * self._surface_hinge().height:.1f}',
             'road bends away beyond the lane': ', '.join(
                 side for side, drift in zip(('left', 'right'), self.side_drift)
