@@ -68,3 +68,31 @@ def test_curve_reports_each_front_end_variant_with_its_accuracy(capsys):
     assert rows[0]['time_over_defaults'] == 1.0 and rows[0]['t_rel_over_defaults'] == 1.0
     for row in rows:
         assert np.isfinite(row['whole_frame_ms']) and np.isfinite(row['t_rel_percent'])
+
+
+def test_a_terrain_bags_truth_is_its_planar_topic_for_the_bench_and_the_live_tools(tmp_path):
+    """A terrain bag holds the 3D pose beside the planar truth, both Odometry: the bench and the
+    live tools (demo, bench --live) score against the planar one, as planar_vo_replay does (they
+    took whichever came last, the 3D pose's horizontal projection)."""
+    from planar_vo.io.bag import ODOM_TYPE, open_reader, read_messages
+    from planar_vo.ros.messages import planar_pose, stamp_to_seconds
+    from planar_vo.synth.cli import main as synth
+    from planar_vo.tools.benchmark import _read_raw
+    from planar_vo.tools.live_session import BagStream
+
+    bag = tmp_path / 'hills'
+    assert synth([str(bag), '--terrain', 'hills', '--frames', '30', '--width', '160',
+                  '--height', '120', '--quiet']) == 0
+    topics: dict[str, dict[float, np.ndarray]] = {}
+    with open_reader(bag) as reader:
+        for conn, _, msg in read_messages(reader, bag):
+            if conn.msgtype == ODOM_TYPE:
+                topics.setdefault(conn.topic, {})[stamp_to_seconds(msg.header.stamp)] = (
+                    planar_pose(msg.pose.pose))
+    planar, pose3d = topics['/ground_truth/odom'], topics['/ground_truth/pose3d']
+    assert planar.keys() == pose3d.keys()
+    assert max(abs(planar[t][0] - pose3d[t][0]) for t in planar) > 1e-4  # they differ
+    for truth in (_read_raw(bag)[2], BagStream.read(bag).truth):
+        assert truth.keys() == planar.keys()
+        for stamp, pose in planar.items():
+            np.testing.assert_array_equal(truth[stamp], pose)

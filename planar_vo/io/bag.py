@@ -36,13 +36,16 @@ from rosbags.typesys import Stores, get_typestore
 
 from planar_vo.io.errors import BagError
 
-__all__ = ['BagWriter', 'open_reader', 'read_messages', 'typestore', 'write_bag', 'IMAGE_TYPES',
-           'INFO_TYPE', 'ODOM_TYPE']
+__all__ = ['BagWriter', 'open_reader', 'read_messages', 'truth_connection', 'typestore',
+           'write_bag', 'IMAGE_TYPES', 'INFO_TYPE', 'ODOM_TYPE', 'PLANAR_TRUTH_TOPIC']
 
 # The message types the tools read: camera images, calibration, ground truth.
 IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
 INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
 ODOM_TYPE = 'nav_msgs/msg/Odometry'
+# The planar truth of planar_vo_synth's bags (distance along the surface); on terrain they
+# also hold the 3D pose, another Odometry topic whose horizontal projection is not the truth.
+PLANAR_TRUTH_TOPIC = '/ground_truth/odom'
 
 
 @functools.cache
@@ -124,6 +127,17 @@ def write_bag(path, messages: Iterable[tuple[str, str, int, object]], *, compres
     with BagWriter(path, compress=compress) as bag:
         for topic, msgtype, stamp_ns, msg in messages:
             bag.write(topic, msgtype, stamp_ns, msg)
+
+
+def truth_connection(connections: Iterable[Connection]) -> Connection | None:
+    """The ground truth's connection: the bag's one Odometry topic, or the planar truth's.
+
+    None when the bag has none, or several and no planar truth among them.
+    """
+    found = [c for c in connections if c.msgtype == ODOM_TYPE]
+    if len({c.topic for c in found}) == 1:
+        return found[0]
+    return next((c for c in found if c.topic == PLANAR_TRUTH_TOPIC), None)
 
 
 class _Reader(AnyReader):

@@ -48,6 +48,7 @@ from planar_vo.io.bag import (
     ODOM_TYPE,
     open_reader,
     read_messages,
+    truth_connection,
     typestore,
 )
 from planar_vo.io.errors import BagError, ResourceError
@@ -103,8 +104,9 @@ def _read_raw(bag: Path) -> tuple[list[tuple[str, bytes]], Any, dict[float, np.n
     """
     images, info, truth = [], None, {}
     with open_reader(bag) as reader:
-        wanted = [c for c in reader.connections if c.msgtype in (*IMAGE_TYPES, INFO_TYPE,
-                                                                  ODOM_TYPE)]
+        truth_conn = truth_connection(reader.connections)
+        wanted = [c for c in reader.connections if c.msgtype in (*IMAGE_TYPES, INFO_TYPE)]
+        wanted += [truth_conn] if truth_conn is not None else []
         for conn, raw, msg in read_messages(reader, bag, wanted,
                                             decode=lambda c: c.msgtype not in IMAGE_TYPES):
             if conn.msgtype == INFO_TYPE:

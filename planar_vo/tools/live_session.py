@@ -20,7 +20,13 @@ from typing import Any
 
 import numpy as np
 
-from planar_vo.io.bag import IMAGE_TYPES, INFO_TYPE, ODOM_TYPE, open_reader, read_messages
+from planar_vo.io.bag import (
+    IMAGE_TYPES,
+    INFO_TYPE,
+    open_reader,
+    read_messages,
+    truth_connection,
+)
 from planar_vo.io.errors import BagError
 from planar_vo.io.resources import executable
 from planar_vo.ros.background import BackgroundSpin
@@ -68,8 +74,9 @@ class BagStream:
         """Pair every image with the CameraInfo of the same stamp (or the latest one)."""
         images, infos, truth, image_type = [], {}, {}, None
         with open_reader(path) as reader:
-            wanted = [c for c in reader.connections if c.msgtype in (*IMAGE_TYPES, INFO_TYPE,
-                                                                      ODOM_TYPE)]
+            truth_conn = truth_connection(reader.connections)
+            wanted = [c for c in reader.connections if c.msgtype in (*IMAGE_TYPES, INFO_TYPE)]
+            wanted += [truth_conn] if truth_conn is not None else []
             for conn, raw, msg in read_messages(reader, path, wanted):
                 stamp = stamp_to_seconds(msg.header.stamp)
                 if conn.msgtype in IMAGE_TYPES:

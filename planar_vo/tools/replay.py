@@ -30,6 +30,7 @@ from planar_vo.io.bag import (
     BagWriter,
     open_reader,
     read_messages,
+    truth_connection,
 )
 from planar_vo.io.errors import BagError
 from planar_vo.io.tum import write_tum
@@ -82,10 +83,6 @@ class ReplayResult:
     readout: ReadoutEstimate | None = None  # the rolling-shutter readout learned, if asked
 
 
-# The planar truth of planar_vo_synth's bags; on terrain they also hold the 3D pose.
-PLANAR_TRUTH_TOPIC = '/ground_truth/odom'
-
-
 def _pick_topic(connections: list, types: tuple[str, ...], wanted: str | None, what: str,
                 flag: str, required: bool = True) -> Any:
     """The connection for ``wanted``, or the only one of ``types``; clear errors otherwise."""
@@ -107,8 +104,8 @@ def _pick_topic(connections: list, types: tuple[str, ...], wanted: str | None, w
         return None
     if what == 'image' and sum(c.msgtype == IMAGE_TYPES[0] for c in found) == 1:
         return next(c for c in found if c.msgtype == IMAGE_TYPES[0])  # raw beats compressed
-    if what == 'ground truth' and PLANAR_TRUTH_TOPIC in topics:  # planar_vo_synth's terrain bags
-        return next(c for c in found if c.topic == PLANAR_TRUTH_TOPIC)
+    if what == 'ground truth' and truth_connection(found) is not None:  # planar_vo_synth's
+        return truth_connection(found)
     raise ReplayError(f'several {what} topics ({", ".join(topics)}): choose one with {flag}')
 
 
