@@ -37,7 +37,8 @@ demo: $(STAMP)
 	$(VENV)/bin/planar_vo_demo bags/default --plot out/demo.png --log out/demo_node.log
 
 # Speed as ratios against baselines measured in the same run (never a pass/fail timing):
-# the bundled bag (and the node over DDS), then a 752x480 camera (rendered once into out/).
+# the bundled bag (and the node over DDS), then a 752x480 camera (rendered once into out/),
+# the same with a rolling shutter, and uneven road: all four terrains under a sprung body.
 BENCH_752 := out/bench_752x480
 # Each also prints the front end's cost against its accuracy (--curve); the bundled bag's run
 # the node's latency, CPU per frame and highest sustained rate, quiet and with a core busy.
@@ -52,6 +53,10 @@ bench: $(STAMP)
 		--height 480 --rate 15 --frames 90 --noise 1.0 --rolling-shutter 0.03 --quiet
 	printf 'planar_vo:\n  ros__parameters:\n    rolling_shutter_readout: 0.03\n' > out/rs_params.yaml
 	$(VENV)/bin/planar_vo_bench $(BENCH_752)_rs --params out/rs_params.yaml
+	# Grades, bumps, camber and hills under a sprung body (`make terrain`'s drive): what the
+	# local ground's bands, bumps and jolts cost a frame.
+	$(MAKE) $(ALL_SPRUNG)
+	$(VENV)/bin/planar_vo_bench $(ALL_SPRUNG) --params $(ALL_SPRUNG).yaml
 
 # Long runs over DDS (about 9 minutes, not part of `make test`) on a 752x480 drive (600 frames,
 # rendered once into out/), played forward and backward: SOAK_FRAMES at 60 Hz (>= 99.5 %
@@ -87,6 +92,12 @@ mountings: $(STAMP)
 SPRUNG_BODY := --body-pitch 1.0 --body-roll 0.6 --bounce 0.015
 TERRAIN_CAMERA := --width 752 --height 480 --rate 20 --frames 300 --camera-height 1.1 \
 	--camera-x 1.2 --dist -0.28 0.07 0.0005 -0.0005 0 --quiet
+ALL_SPRUNG := out/terrain/all_sprung
+$(ALL_SPRUNG): | $(STAMP)
+	mkdir -p out/terrain
+	$(VENV)/bin/planar_vo_synth $@ --terrain all $(TERRAIN_CAMERA) $(SPRUNG_BODY) \
+		--params-out $@.yaml
+
 terrain: $(STAMP)
 	mkdir -p out/terrain
 	for kind in flat grades bumps camber hills all; do \
