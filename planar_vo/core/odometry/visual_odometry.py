@@ -19,12 +19,7 @@ import numpy as np
 
 from planar_vo.core import config
 from planar_vo.core.config import mounting_from_params
-from planar_vo.core.estimation.calibration import (
-    MountingCalibrator,
-    MountingEstimate,
-    calibrated_params,
-    mounting_advice,
-)
+from planar_vo.core.estimation.calibration import MountingCalibrator, MountingEstimate
 from planar_vo.core.estimation.opencv_motion import homography_motion
 from planar_vo.core.estimation.ransac import (
     PoseEstimationError,
@@ -44,6 +39,7 @@ from planar_vo.core.frontend.ground_frontend import GroundFrontEnd
 from planar_vo.core.frontend.tracker import Tracker
 from planar_vo.core.geometry.camera import CameraModel, Mounting, bin_image, rays_through
 from planar_vo.core.geometry.se2 import compose, inverse_motion, step_length, twist_motion
+from planar_vo.core.odometry.advice import calibration_report, ground_advice
 from planar_vo.core.odometry.attitude_filter import AttitudeFilter, AttitudeNoise
 from planar_vo.core.odometry.frame_gate import FrameGate
 from planar_vo.core.odometry.ground_filter import LocalGroundFilter
@@ -59,9 +55,6 @@ _MASK_REDRAW_YAW = np.radians(0.5)
 _OUTLIER_DROP = 3.0  # tracks this many inlier thresholds off the motion are dropped
 # Images over this many pixels are binned by default (see binning_for).
 _BINNING_ABOVE = 1.5e6
-# A camera turned further than this from straight ahead is told the local ground is not for it
-# (rendered flat drives: 20 deg as ahead, 30 deg 0.22-0.35 % against the plane model's 0.11).
-_LOOKS_AHEAD = np.radians(25.0)
 
 
 class VisualOdometry:
@@ -222,35 +215,10 @@ class VisualOdometry:
         the wheelbase's when it lies beyond the middle of the camera's view of the ground (the
         ground model's for a camera turned away from straight ahead).
         """
-        values, advice = self._mounting_diagnostics()
+        values, advice = calibration_report(self._tilt_filter, self.configured_mounting)
         shutter_values, shutter_advice = self.shutter_learning.diagnostics()
-        return {**values, **shutter_values}, {**advice, **self._ground_advice(), **shutter_advice}
-
-    def _ground_advice(self) -> dict[str, str]:
-        """Advice when the local ground cannot hold as configured.
-
-        Wheels set where the camera sees the ground: the local ground then bends from where
-        the camera sees it (see :meth:`LocalGroundFilter.see_ground`); the wheels' own place is
-        still better. A camera turned away from straight ahead is told what the local ground
-        cannot do for it instead.
-        """
-        if self.ground is None:
-            return {}
-        turned = float(np.arccos(np.cos(self.mounting.yaw)))  # 0..pi from straight ahead
-        if turned > _LOOKS_AHEAD:
-            return {'ground_model': (
-                f'the camera is turned {np.degrees(turned):.0f} deg '
-                'from straight ahead: the local ground is built for a camera that sees the road '
-                'its wheels will drive on (rendered flat roads, turned 30-90 deg: 0.2-0.6 %, '
-                'the plane model 0.1-0.2; looking back 0.11 %, over grades, bumps, camber and '
-                'hills 2.1 %); on a flat floor set ground_model to plane')}
-        if not self.ground.wheels_inside_view():
-            return {}
-        return {'wheelbase': (
-            f'wheelbase is {self.ground.wheelbase:.2f} m but the camera sees the ground from '
-            f'{self.ground.hinge:.2f} m ahead of base_link: the road is taken to bend from '
-            'there. Set wheelbase to where the front wheels stand (a differential-drive robot: '
-            'its front caster, or 0 when its drive wheels lead)')}
+        ground = ground_advice(self.ground, self.mounting)
+        return {**values, **shutter_values}, {**advice, **ground, **shutter_advice}
 
     def _ground_seen(self) -> tuple[float, float] | None:
         """How far ahead of base_link (m) the camera's view of the ground begins and ends.
@@ -268,24 +236,6 @@ class VisualOdometry:
         if not np.any(valid):
             return None
         return float(np.min(points[valid, 0])), float(np.max(points[valid, 0]))
-
-    def _mounting_diagnostics(self) -> tuple[dict[str, str], dict[str, str]]:
-        if self._tilt_filter is None or not self._tilt_filter.self_calibrate:
-            return {}, {}
-        estimate, configured = self.mounting_estimate(), self.configured_mounting
-        now = calibrated_params(configured)
-        values = {}
-        for name, value in estimate.as_params().items():
-            std = estimate.std[name]
-            if name == 'camera_x':
-                values[f'{name} estimated (m)'] = f'{value:.3f} +- {std:.3f}'
-                values[f'{name} configured (m)'] = f'{now[name]:.3f}'
-            else:
-                values[f'{name} estimated (deg)'] = (f'{np.degrees(value):.3f} +- '
-                                                     f'{np.degrees(std):.3f}')
-                values[f'{name} configured (deg)'] = f'{np.degrees(now[name]):.3f}'
-        values['calibration drive (s)'] = f'{estimate.seconds:.1f}'
-        return values, mounting_advice(configured, estimate)
 
     def set_camera(self, camera: CameraModel) -> None:
         """New intrinsics (e.g. a changed CameraInfo); tracks stay.
