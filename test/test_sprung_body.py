@@ -130,10 +130,13 @@ def test_a_learned_pivot_moves_the_camera_as_a_rigid_body_turning_about_it():
     ground.body = np.array([0.0, 0.02])  # the body pitched 0.02 rad to its wheels
     in_place = ground.tilted(MOUNT)
     np.testing.assert_array_equal(in_place.position, MOUNT.position)
+    key = 'body pitches about (m ahead of base_link)'
+    assert ground.diagnostics()[key] == 'the camera (not learned)'
     # Learned at base_link's x (a regression of slope 0, well known), half the camera's height up.
     ground.sprung = dataclasses.replace(ground.sprung, pivot_learned=True,
                                         pivot_sums=np.array([1.0, 0.0, 1e-6, 1000.0]))
     assert abs(ground.sprung.pivot_x(MOUNT.x)) < 1e-6
+    assert ground.diagnostics()[key] == '0.00'
     moved = ground.tilted(MOUNT)
     arm_x, arm_z, pitch = MOUNT.x, 0.5 * MOUNT.height, 0.02
     np.testing.assert_allclose(

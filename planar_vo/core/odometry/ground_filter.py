@@ -755,6 +755,9 @@ class LocalGroundFilter:
             'ground ahead irregular': str(self.irregular),
             'bumps ahead (m)': ', '.join(f'{x:.1f}' for x in self.ahead.bumps.ahead) or 'none',
             'front wheels above the road ahead (cm)': f'{-100 * self._surface_hinge().height:.1f}',
+            'body pitches about (m ahead of base_link)': (
+                f'{self.sprung.pivot_x(self.calibrator.working.x):.2f}'
+                if self.sprung.pivot_learned else 'the camera (not learned)'),
             'road bends away beyond the lane': ', '.join(
                 side for side, drift in zip(('left', 'right'), self.side_drift)
                 if abs(drift) > _SIDE_SIGMAS) or 'neither side',
