@@ -104,8 +104,9 @@ def _pick_topic(connections: list, types: tuple[str, ...], wanted: str | None, w
         return None
     if what == 'image' and sum(c.msgtype == IMAGE_TYPES[0] for c in found) == 1:
         return next(c for c in found if c.msgtype == IMAGE_TYPES[0])  # raw beats compressed
-    if what == 'ground truth' and truth_connection(found) is not None:  # planar_vo_synth's
-        return truth_connection(found)
+    truth = truth_connection(found) if what == 'ground truth' else None
+    if truth is not None:  # the planar one of planar_vo_synth's terrain bags
+        return truth
     raise ReplayError(f'several {what} topics ({", ".join(topics)}): choose one with {flag}')
 
 

@@ -636,7 +636,7 @@ class LocalGroundFilter:
         if (turn is not None and self.wheel_lift <= _IRREGULAR_LIFT
                 and float(motion[0]) > _HISTORY_TRAVEL and self._flat_pair(surface, motion)):
             self.sprung = self.sprung.with_pivot_sample(turn, float(rotation[2]), dt,
-                                                        float(camera[0]))
+                                                        self.calibrator.working.x)
         if turn is None or self.wheel_lift > _IRREGULAR_LIFT:
             turn = 0.0
         self.profile = self.profile.with_pair(np.asarray(motion, dtype=float), rotation[:2],

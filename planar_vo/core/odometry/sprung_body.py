@@ -49,15 +49,16 @@ _PRIOR_LIFT = 0.005
 _PRIOR_PAIRS = 5
 # Where the body pitches about (its x in base_link; its height made no difference on rendered
 # drives). The pair turns about base_link, so its height change is the pivot's x times the
-# body's pitch turn: regressed over calm pairs, it finds the renderer's pivot on flat sprung
-# drives (1.36 m for 1.35, 0.01 for 0). A 12 s drive's bounce and pitch correlate by chance
-# (mid-car pivots regressed to 0.33-1.0 m for a while), so each sample weighs as a sample
-# every _PIVOT_CORRELATION_S, nothing is learned before _PIVOT_WARMUP_S of them, the camera's
-# own x (the tilt in place, as before) is the prior, _PIVOT_SPREAD_M wide, and the pivot is
-# taken as learned only once its estimate leaves the prior by _PIVOT_APART_M. A body that
-# pitches about base_link (flat, 12 s) 0.307 -> 0.147 % t_rel, over 60 s 0.111 -> 0.061;
-# mid-car bodies unchanged (with the truth given they gain nothing: 0.066 -> 0.073, 0.131 ->
-# 0.123). Without the threshold they lost up to 0.02; with a sample every 0.25 s, 0.022.
+# body's pitch turn: regressed over pairs on flat road (the ground filter's _flat_pair), it
+# finds the renderer's pivot on flat sprung drives (1.36 m for 1.35, 0.01 for 0). A 12 s
+# drive's bounce and pitch correlate by chance (mid-car pivots regressed to 0.33-1.0 m for a
+# while), so each sample weighs as a sample every _PIVOT_CORRELATION_S, nothing is learned
+# before _PIVOT_WARMUP_S of them, the camera's own x (the tilt in place, as before) is the
+# prior, _PIVOT_SPREAD_M wide, and the pivot is taken as learned only once its estimate leaves
+# the prior by _PIVOT_APART_M. A body that pitches about base_link (flat, 12 s) 0.307 -> 0.149
+# % t_rel, over 60 s 0.111 -> 0.066; mid-car bodies unchanged (with the truth given they gain
+# nothing: 0.066 -> 0.073, 0.131 -> 0.123). Without the threshold they lost up to 0.02; with a
+# sample every 0.25 s, 0.022.
 _PIVOT_CORRELATION_S = 0.5
 _PIVOT_WARMUP_S = 2.5
 _PIVOT_SPREAD_M = 0.7
