@@ -119,7 +119,9 @@ class RoadAhead:
             ahead = float(fit.motion[0])
             smooth = fit.surface[0] * ahead + 0.5 * fit.surface[2] * ahead * ahead
             rise = float(fit.rotation[2] - hinge.x * np.sin(fit.rotation[1]) - smooth)
-        return RoadAhead(bumps.lifted(rise, hinge.x), self.raised, raised_seen)
+        after = RoadAhead(bumps.lifted(rise, hinge.x), self.raised, raised_seen)
+        after._under.update(self._under)  # the same raised ground: what was read holds
+        return after
 
     def moved(self, motion: np.ndarray, camera_x: float, hinge: float) -> RoadAhead:
         """Self after the vehicle moved by ``motion`` (x, y, yaw), the last pair's samples kept.
