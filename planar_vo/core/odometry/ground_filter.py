@@ -1,8 +1,9 @@
 """The local ground under and ahead of the vehicle, tracked frame to frame.
 
 Each frame pair is refined over the road surface ahead (:mod:`planar_vo.core.estimation.
-local_ground`): the surface's grade, cross-slope, curvature and twist relative to the wheels,
-and the vehicle's rotation between the frames. What one pair learned is the next pair's prior,
+local_ground`, as :mod:`planar_vo.core.odometry.pair_fit` tries it): the surface's grade,
+cross-slope, curvature and twist relative to the wheels, and the vehicle's rotation between
+the frames. What one pair learned is the next pair's prior,
 moved on by the distance travelled (the road ahead changes with distance, not time). The mean
 grade and cross-slope over a drive are the camera's static pitch and roll offsets (the road
 ahead is, on average, the road the wheels later stand on): self-calibration learns them with
@@ -24,21 +25,19 @@ from planar_vo.core.estimation.local_ground import (
     Hinge,
     LocalGroundResult,
     ray_coefficients,
-    refine_on_local_ground,
     surface_residuals,
 )
 from planar_vo.core.estimation.ransac import RansacResult, TransferModel
 from planar_vo.core.geometry.camera import Mounting
-from planar_vo.core.geometry.se2 import off_arc, step_length
-from planar_vo.core.odometry.attitude_filter import JOLT_SIGMAS, jolt_threshold
+from planar_vo.core.geometry.se2 import step_length
+from planar_vo.core.odometry.attitude_filter import jolt_threshold
 from planar_vo.core.odometry.covariance import correlated_covariance
+from planar_vo.core.odometry.pair_fit import HALF_TRACK, IRREGULAR_LIFT, PairFit, samples_near
 from planar_vo.core.odometry.road_ahead import RoadAhead
 from planar_vo.core.odometry.road_profile import SAMPLES_AHEAD, RoadProfile
 from planar_vo.core.odometry.sprung_body import SprungBody
 from planar_vo.core.odometry.surface_bands import (
     BAND_REACH,
-    off_surface_bands,
-    refit_consistent,
     side_offsets,
     wheel_plane_distance,
     wheel_plane_lateral,
@@ -53,30 +52,10 @@ __all__ = ['LocalGroundFilter']
 _SURFACE_SIGMA = np.array([0.05, 0.05, 0.03, 0.03, 0.03])
 _SURFACE_PER_METRE = np.array([0.035, 0.035, 0.014, 0.014, 0.014])
 _SURFACE_FLOOR = np.array([1e-4, 1e-4, 1e-5, 1e-5, 1e-5])
-# Cauchy scale, in the inliers' own noise: tracks off the smooth surface (a bump's faces,
-# past a road's crown) weigh less. On the rendered camber drive 1 took t_rel from 0.25 to
-# 0.08 %; 2: 0.12 %.
-_CAUCHY = 1.0
 _RATE_MEMORY_S = 2.0
 _MIN_RATE = np.array([0.05, 0.05, 0.01])  # rad/s, rad/s, m/s: the learned rate's floor
 _IRREGULAR_SIGMAS = 3.0  # a surface this many prior sigmas from the last: irregular ground
 _IRREGULAR_INFLATION = 4.0  # its motion's covariance then grows this much
-# A wheel hitting a bump lifts its end of the wheels' plane off the road; the road past the
-# front axle is then below that plane, which the surface cannot hold (on a rendered 8 cm bump
-# the step came out 8 % short, 12 times its standard deviation). The pair's rotation beyond
-# this many of the body's learned turn rates is taken for such a lift, and its scale error
-# enters the covariance of this pair and the next (the wheel comes down a frame later).
-_WHEEL_LIFT_SIGMAS = 3.0
-_IRREGULAR_LIFT = 0.01  # m: a wheel lifted this far makes the ground irregular
-# A wheel climbing a long, low bump (5 cm over 1.5 m) rises 2-4 cm a frame and pitches the car
-# less than a lift (4-10 mm of it): the height change's prior, the rate learned on the road
-# before (0.5 mm a frame at 20 Hz), held the rise back and the steps came out 5-10 mm short for
-# five frames at each axle. When the pair's own reading of the height change is beyond
-# _RISE_SIGMAS of that rate and _RISE_FLOOR, the pair is refitted as for a lift. Stop 37:
-# that drive 0.235 -> 0.126 %, 34 drives (docs/terrain-notes.md) 4.533 -> 4.516 (none by 0.02);
-# 3 or 5 sigmas: 0.115 / 0.114, 8: 0.239 again.
-_RISE_SIGMAS = 4.0
-_RISE_FLOOR = 0.01  # m (0.005: the same)
 # Self-calibration of the static tilt (_tilt_sample): from the road ahead only pairs over
 # smooth ground (curvatures and twist two sigmas inside this, 1/m) count; the mean is shrunk by its
 # significance, its samples correlated over about _TERRAIN_CORRELATION_S (a grade every
@@ -98,17 +77,6 @@ _HISTORY_TRAVEL = 0.01  # m: a pair this far forward gives the history's reading
 # corrected it (stop 44: 20 drives 5.570 -> 5.379 in sum, that drive 0.225 -> 0.196 %; the
 # mounting 1 deg off 0.058 -> 0.068; 3 m and 10 m the same).
 _UNREAD_TRAVEL = 5.0
-# A front wheel coming down off a bump: at the pair's first frame it stood on the bump, so the
-# road past the front axle lay below the wheels' plane by its height, which the raised ground
-# or a band gives only where they saw the bump (a bump crossed at an angle, one wheel on it:
-# none of its 37 mm known, the step 15.7 mm short). The pair's own rotation tells it: its
-# pitch beyond the road's curve (nose down) times the hinge is the drop, when the pair lifted
-# a wheel and base_link did not rise with it (a rear wheel climbing pitches the same way and
-# lifts base_link by _DROP_RISE_SHARE of it or more). When the drop is over the known height by
-# _DROP_MARGIN (m) the pair is refitted with the front wheels that high. Stop 44, per pair on
-# three all-four sprung drives: the steps of front descents -3.4 -> -1.4 mm in mean.
-_DROP_MARGIN = 0.01
-_DROP_RISE_SHARE = 0.3
 # On uneven ground the surface (a quadratic hinged at the front axle) holds only so far: the
 # tracks beyond _UNEVEN_REACH (m from the camera, over the ground) carry its error into the
 # motion. The ground ahead is uneven when the last pair was irregular or one of its
@@ -124,25 +92,6 @@ _UNEVEN_REACH = 4.1
 _CALM_AHEAD = 0.005
 _CALM_SIGMAS = 3.0
 _KEPT_AT_LEAST = 0.75
-# Wheels roll, they do not slide: base_link (between the rear or drive wheels) moves along a
-# circular arc, the paper's motion model. A refined motion this far off its arc (a share of
-# the step, with a floor for slow steps) is a fit gone astray on a jolt, not the vehicle's:
-# the jolt's fit replaces it when that one keeps to an arc. Over 50 rendered drives the
-# fits' largest slide was 3 % of the step, but for six of 6-12 % on bumps (one kept 7 of 148
-# tracks; one a 1.05 deg yaw error at 10 Hz). That drive 0.51 -> 0.46 %, r_rel 1.02 -> 0.29
-# deg/100 m; a bumps drive 0.20 -> 0.15 %; 42 drives (terrain-notes.md) 5.04 -> 5.05 in sum.
-# When the jolt's fit slides too, through a jolt (a wheel lifted), the pair is refined again
-# held to its arc within _HELD_SHARE of the bound: the paper's circular motion, where the
-# tracks cannot tell a sideways slide from a roll and a turn (45 of 233 tracks left as a
-# wheel climbed a bump crossed at 23 deg: three frames 0.2-0.29 deg of yaw off, that drive
-# 0.378 -> 0.158 %).
-# Stop 34, 24 rendered drives: a share of 0.05 -> 0.03 took another of them 0.253 -> 0.216 %
-# (0.02: 3.93 in sum against 3.92; the held fit within 0.3 or 0.03 of the bound: 3.93).
-# Held always, within 1 or 2 % of the step: 3.95-3.98 in sum, and the sideways slip that
-# self-calibration learns the camera's yaw and camera_x from would be held too.
-_SLIDE_SHARE = 0.03
-_SLIDE_FLOOR = 0.005  # m
-_HELD_SHARE = 0.1
 # The road beyond surface_half_width on a side is left out of the fit while its tracks are
 # off the surface, along their flow, by over _SIDE_SIGMAS standard errors in the mean over
 # _SIDE_MEMORY_M of travel (a crowned road: the far side of the crown falls away; fitted, it
@@ -158,7 +107,6 @@ _SIDE_MEMORY_M = 5.0
 _PIVOT_FLAT_GRADE = 0.01
 _PIVOT_FLAT_CURVATURE = 0.002
 _PIVOT_FLAT_TURN = 0.0003
-_HALF_TRACK = 1.0  # m either side of base_link whose remembered road the wheels stand on
 
 
 class LocalGroundFilter:
@@ -323,12 +271,15 @@ class LocalGroundFilter:
         v1 = rays1 @ camera.base_from_optical.T
         distance = wheel_plane_distance(camera, v1)
         beyond, on_bumps = self._left_out(camera, v1, distance, 2 * min_inliers)
-        fitted = dict(camera=camera, prior=prior, focal_px=model.focal_px, hinge=hinge, dt=dt,
-                      travel=travel, inlier_threshold=inlier_threshold,
-                      start_threshold=start_threshold, min_inliers=min_inliers)
+        pair = PairFit(camera=camera, focal_px=model.focal_px, dt=dt, travel=travel,
+                       inlier_threshold=inlier_threshold, start_threshold=start_threshold,
+                       min_inliers=min_inliers, rates=self.rates, rate2=self.rate2,
+                       body_rate2=self.sprung.rate2,
+                       road_turn=self.profile.pitch_change(self.hinge, HALF_TRACK, travel),
+                       front_axle=self.hinge, track=self.track)
         try:
             shown = np.flatnonzero(~(beyond | on_bumps))
-            fit, prior, hinge, rough = self._fit_shown(est.motion, v1, m2, shown, **fitted)
+            fit, prior, hinge, rough = pair.on_tracks(est.motion, v1, m2, shown, prior, hinge)
         except PoseEstimationError:
             if not on_bumps.any():
                 raise
@@ -336,7 +287,7 @@ class LocalGroundFilter:
             # the pair (a car's camera 0.8 m up: 25 of 316, then tracking lost): with them.
             on_bumps = np.zeros_like(on_bumps)
             shown = np.flatnonzero(~beyond)
-            fit, prior, hinge, rough = self._fit_shown(est.motion, v1, m2, shown, **fitted)
+            fit, prior, hinge, rough = pair.on_tracks(est.motion, v1, m2, shown, prior, hinge)
         hidden = beyond | on_bumps
         if hidden.any():
             fit = _on_all_tracks(fit, shown, len(v1))
@@ -347,10 +298,10 @@ class LocalGroundFilter:
             self.side_drift = self.side_drift + min(travel / _SIDE_MEMORY_M, 1.0) * (
                 sides - self.side_drift)
         if on_bumps.any():
-            rough = rough | self._samples_near(np.array(self.ahead.bumps.ahead))
-        lifted = self._wheel_lift(fit.rotation, dt, travel)
+            rough = rough | samples_near(self.hinge, np.array(self.ahead.bumps.ahead))
+        lifted = pair.wheel_lift(fit.rotation)
         self.ahead = self.ahead.after_pair(
-            fit, prior.surface, lifted=lifted > _IRREGULAR_LIFT, rate_samples=self.rate_samples,
+            fit, prior.surface, lifted=lifted > IRREGULAR_LIFT, rate_samples=self.rate_samples,
             rays1=rays1, v1=v1, m2=m2, camera=camera, hinge=hinge, distance=distance)
         self.surface, self.surface_cov = fit.surface, fit.surface_cov
         # Weight 0.1: a residual 3 sigma off the surface (1 % of Gaussian noise).
@@ -360,7 +311,7 @@ class LocalGroundFilter:
         # or the last).
         jump = np.abs(fit.surface - prior.surface) / np.sqrt(np.diag(prior.surface_cov))
         lift = max(lifted, self.wheel_lift)
-        self.irregular = float(np.max(jump)) > _IRREGULAR_SIGMAS or lift > _IRREGULAR_LIFT
+        self.irregular = float(np.max(jump)) > _IRREGULAR_SIGMAS or lift > IRREGULAR_LIFT
         self.rough_ahead = rough
         self._learn_rate(fit, dt)
         calibrated = None
@@ -399,34 +350,6 @@ class LocalGroundFilter:
         r, J, front = surface_residuals(flat, v1, np.ascontiguousarray(m2.T), camera, hinge)
         return r, J[:8], np.where(front, weights, 0.0)
 
-    def _fit_shown(self, motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, shown: np.ndarray,
-                   *, camera: Mounting, prior: GroundPrior, focal_px: float, hinge: Hinge,
-                   dt: float, travel: float, inlier_threshold: float, start_threshold: float,
-                   min_inliers: int,
-                   ) -> tuple[LocalGroundResult, GroundPrior, Hinge, np.ndarray]:
-        """The pair refined on the ``shown`` tracks (indices into v1 and m2).
-
-        Its fit, the prior and the hinge it used, and the road history's samples a band covers
-        (see _without_bands). Once more from the front wheels' height if they came down. Raises
-        PoseEstimationError when fewer than ``min_inliers`` fit.
-        """
-        options = dict(dt=dt, inlier_threshold=inlier_threshold, start_threshold=start_threshold)
-        v1, m2 = v1[shown], m2[shown]
-        fit, used_prior = self._fit(motion, v1, m2, camera, prior, focal_px, hinge, **options)
-        drop = self._front_drop(fit, dt, travel)
-        if drop > -hinge.height + _DROP_MARGIN:
-            hinge = Hinge(self.hinge, self.track, -drop)
-            fit, used_prior = self._fit(motion, v1, m2, camera, prior, focal_px, hinge,
-                                        **options)
-        fit, rough = self._without_bands(fit, motion, v1, m2, camera, used_prior, focal_px,
-                                         hinge, inlier_threshold=inlier_threshold,
-                                         start_threshold=start_threshold,
-                                         min_inliers=min_inliers)
-        count = int(np.count_nonzero(fit.inliers))
-        if count < min_inliers:
-            raise PoseEstimationError(f'{count} inliers, fewer than {min_inliers}')
-        return fit, used_prior, hinge, rough
-
     def _left_out(self, camera: Mounting, v1: np.ndarray, distance: np.ndarray,
                   keep: int) -> tuple[np.ndarray, np.ndarray]:
         """Which tracks (N,) bool the pair's fit leaves out: beyond the lane, on a bump.
@@ -442,113 +365,6 @@ class LocalGroundFilter:
         if np.count_nonzero(~(beyond | on_bumps)) < keep:
             on_bumps[:] = False
         return beyond, on_bumps
-
-    def _fit(self, motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
-             prior: GroundPrior, focal_px: float, hinge: Hinge, *, dt: float,
-             inlier_threshold: float, start_threshold: float,
-             ) -> tuple[LocalGroundResult, GroundPrior]:
-        """The pair refined over the local ground, and the prior it used.
-
-        Once more through a jolt if it is lost. A fit that slides sideways off its arc gives
-        way to the jolt's fit if that one keeps to an arc; if that one slides through a jolt,
-        to the fit held to its arc (see _SLIDE_SHARE).
-        """
-        args = (motion, v1, m2, camera, prior, focal_px, hinge)
-        options = dict(dt=dt, inlier_threshold=inlier_threshold, start_threshold=start_threshold)
-        travel = step_length(motion)
-        bound = max(_SLIDE_SHARE * travel, _SLIDE_FLOOR)
-        held = dict(options, arc_sigma=_HELD_SHARE * bound)
-
-        def astray(jolted: LocalGroundResult) -> bool:
-            # Sliding through a jolt: a vehicle that really moves sideways (mecanum wheels)
-            # keeps its own fit on smooth ground.
-            return (off_arc(jolted.motion) > bound
-                    and self._wheel_lift(jolted.rotation, dt, travel) > _IRREGULAR_LIFT)
-
-        try:
-            fit, used = self._fit_smooth(*args, **options)
-        except PoseEstimationError:
-            jolted = self._fit_jolt(*args, **options)
-            if not astray(jolted[0]):
-                return jolted
-            try:
-                return self._fit_jolt(*args, **held)
-            except PoseEstimationError:
-                return jolted
-        if off_arc(fit.motion) <= bound:
-            return fit, used
-        try:
-            jolted = self._fit_jolt(*args, **options)
-        except PoseEstimationError:
-            return fit, used
-        if off_arc(jolted[0].motion) <= bound:
-            return jolted
-        if not astray(jolted[0]):
-            return fit, used
-        try:
-            return self._fit_smooth(*args, **held)
-        except PoseEstimationError:
-            return fit, used
-
-    def _fit_smooth(self, motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
-                    prior: GroundPrior, focal_px: float, hinge: Hinge, *, dt: float,
-                    inlier_threshold: float, start_threshold: float,
-                    arc_sigma: float | None = None,
-                    ) -> tuple[LocalGroundResult, GroundPrior]:
-        """The pair refined with the body's learned rate as the rotation's prior.
-
-        Once more with the height change's upper bound if a wheel lifted. Raises
-        PoseEstimationError when it is lost.
-        """
-        fit = refine_on_local_ground(
-            motion, v1, m2, camera, prior, focal_px=focal_px,
-            threshold_px=inlier_threshold, start_threshold_px=start_threshold,
-            hinge=hinge, cauchy=_CAUCHY, arc_sigma=arc_sigma)
-        travel = step_length(motion)
-        if (self._wheel_lift(fit.rotation, dt, travel) <= _IRREGULAR_LIFT
-                and not self._height_held_down(fit, dt)):
-            return fit, prior
-        # A rear wheel climbing a bump lifts base_link 5-8 cm within a frame, far past
-        # the height's rate learned on the road before: that prior held the lift to 80 %
-        # and the step took the rest (+10-24 mm a bump on a rendered 8 cm bump).
-        rates2 = np.r_[self.rate2[:2], self.rates[2] ** 2]
-        lifted = GroundPrior(np.diag(rates2 * dt * dt), prior.surface, prior.surface_cov)
-        return refine_on_local_ground(
-            motion, v1, m2, camera, lifted, focal_px=focal_px,
-            threshold_px=inlier_threshold, start_threshold_px=start_threshold,
-            hinge=hinge, cauchy=_CAUCHY, arc_sigma=arc_sigma), lifted
-
-    def _height_held_down(self, fit: LocalGroundResult, dt: float) -> bool:
-        """Whether the height change's prior held the camera down against the tracks.
-
-        The pair's reading of the height change without its prior (``measured_rotation``)
-        beyond _RISE_SIGMAS of the learned rate and _RISE_FLOOR: a wheel climbing a long, low
-        bump, whose rise a frame is below what the pitch flags as a lift.
-        """
-        bound = max(_RISE_SIGMAS * float(np.sqrt(self.rate2[2])) * dt, _RISE_FLOOR)
-        return abs(float(fit.measured_rotation[2])) > bound
-
-    def _fit_jolt(self, motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, camera: Mounting,
-                  prior: GroundPrior, focal_px: float, hinge: Hinge, *, dt: float,
-                  inlier_threshold: float, start_threshold: float,
-                  arc_sigma: float | None = None,
-                  ) -> tuple[LocalGroundResult, GroundPrior]:
-        """The pair refined as a jolt beyond the learned rate, and the prior it used.
-
-        A wheel hitting a bump turns the car 1-2 deg in a frame: the rotation's prior is the
-        rate's upper bound, from a wider threshold.
-        """
-        jolt = GroundPrior(np.diag(self.rates ** 2 * dt * dt), prior.surface, prior.surface_cov)
-        wide = jolt_threshold(self.rates ** 2, inlier_threshold, focal_px, dt)
-        fit = refine_on_local_ground(
-            motion, v1, m2, camera, jolt, focal_px=focal_px,
-            threshold_px=inlier_threshold, start_threshold_px=max(wide, start_threshold),
-            hinge=hinge, cauchy=_CAUCHY, arc_sigma=arc_sigma)
-        if np.any(np.abs(fit.rotation[:2]) > JOLT_SIGMAS * self.rates[:2] * dt):
-            # No vehicle turns that fast: an image that matches nothing (a shifted or corrupt
-            # frame) fitted by a rotation.
-            raise PoseEstimationError('no motion fits the local ground, even as a jolt')
-        return fit, jolt
 
     def _tilt_sample(self, fit: LocalGroundResult, used: np.ndarray) -> np.ndarray | None:
         """The camera's (roll, pitch) beyond the configured mounting, for self-calibration.
@@ -573,51 +389,9 @@ class LocalGroundFilter:
         # The surface's grade and cross-slope, as the camera's tilt: (roll, pitch).
         return used - np.r_[fit.surface[1], -fit.surface[0]] if calm else None
 
-    def _without_bands(self, fit: LocalGroundResult, motion: np.ndarray, v1: np.ndarray,
-                       m2: np.ndarray, camera: Mounting, prior: GroundPrior, focal_px: float,
-                       hinge: Hinge, *, inlier_threshold: float, start_threshold: float,
-                       min_inliers: int) -> tuple[LocalGroundResult, np.ndarray]:
-        """``fit`` refined again without the bands off its surface (when that holds).
-
-        Also returns which of the road history's samples ahead (SAMPLES_AHEAD) a band covers.
-        """
-        keep = off_surface_bands(fit, v1, m2, camera, hinge, focal_px)
-        # The road's history is not kept where a band went: the smooth surface is not the
-        # road there (all four terrains with a sprung body: 0.50 -> 0.44 %; marking every
-        # sample of a pair whose surface jumped kept the body's tilt unread on 2/3 of it).
-        rough = np.zeros(len(SAMPLES_AHEAD), bool)
-        if keep is None:
-            return fit, rough
-        went = wheel_plane_distance(camera, v1[~keep])
-        rough = self._samples_near(went)
-        if np.count_nonzero(keep) < min_inliers:
-            return fit, rough
-        try:
-            again = refine_on_local_ground(
-                motion, v1[keep], m2[keep], camera, prior, focal_px=focal_px,
-                threshold_px=inlier_threshold, start_threshold_px=start_threshold,
-                hinge=hinge, cauchy=_CAUCHY)
-        except PoseEstimationError:
-            return fit, rough
-        if np.count_nonzero(again.inliers) < min_inliers or not refit_consistent(again, fit):
-            return fit, rough
-        inliers = np.zeros(len(v1), bool)
-        inliers[np.flatnonzero(keep)[again.inliers]] = True
-        weights = np.zeros(len(v1))
-        weights[keep] = again.weights
-        return dataclasses.replace(again, inliers=inliers, weights=weights), rough
-
     def _surface_hinge(self) -> Hinge:
         """Where the surface meets the front wheels, and how high (one on a bump ahead)."""
         return self.ahead.hinge(self.hinge, self.track, self.camera_height)
-
-    def _samples_near(self, xs: np.ndarray) -> np.ndarray:
-        """Which of the road history's samples ahead lie near a band or bump.
-
-        ``xs``: where the bands or bumps are (m, base_link); near: within BAND_REACH.
-        """
-        ahead = self.hinge + SAMPLES_AHEAD
-        return np.any(np.abs(ahead[:, None] - xs[None, :]) < BAND_REACH, axis=1)
 
     def advance(self, motion: np.ndarray) -> None:
         """The last refined pair's motion was taken: remember its road, move on.
@@ -633,21 +407,21 @@ class LocalGroundFilter:
         self.camera_height = float(camera[2])
         self.last_fit = self.solution = None
         turn = self._pitch_beyond_road(rotation, float(motion[0]))  # the body's, if no lift
-        if (turn is not None and self.wheel_lift <= _IRREGULAR_LIFT
+        if (turn is not None and self.wheel_lift <= IRREGULAR_LIFT
                 and float(motion[0]) > _HISTORY_TRAVEL and self._flat_pair(surface, motion)):
             self.sprung = self.sprung.with_pivot_sample(turn, float(rotation[2]), dt,
                                                         self.calibrator.working.x)
-        if turn is None or self.wheel_lift > _IRREGULAR_LIFT:
+        if turn is None or self.wheel_lift > IRREGULAR_LIFT:
             turn = 0.0
         self.profile = self.profile.with_pair(np.asarray(motion, dtype=float), rotation[:2],
                                               surface, surface_cov, used, self.hinge,
                                               self.rough_ahead)
-        seen = self.profile.camera_tilt(self.hinge, _HALF_TRACK)
+        seen = self.profile.camera_tilt(self.hinge, HALF_TRACK)
         self.history_reads = self.history_reads or seen is not None
         if not self.history_reads:
             self.travel_unread += abs(float(motion[0]))
-        self.seen_tilt = None if seen is None or self.wheel_lift > _IRREGULAR_LIFT else seen[0]
-        if self.wheel_lift > _IRREGULAR_LIFT:
+        self.seen_tilt = None if seen is None or self.wheel_lift > IRREGULAR_LIFT else seen[0]
+        if self.wheel_lift > IRREGULAR_LIFT:
             # A wheel on a bump tilts the wheels, not the body: the tilt to the road's chord
             # is not the body's, and the body's spread is not learned from it (learned, it
             # let the history's readings over the bump's ground through: +0.2-1.0 deg on a
@@ -675,7 +449,7 @@ class LocalGroundFilter:
             return False
         if np.any(np.abs(surface[2:]) >= _PIVOT_FLAT_CURVATURE):
             return False
-        curve = self.profile.pitch_change(self.hinge, _HALF_TRACK, float(motion[0]))
+        curve = self.profile.pitch_change(self.hinge, HALF_TRACK, float(motion[0]))
         return curve is not None and abs(curve) < _PIVOT_FLAT_TURN
 
     def on_surface(self, points: np.ndarray, camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -698,40 +472,13 @@ class LocalGroundFilter:
         xy = camera[:2] + scale[:, None] * (points - camera[:2])
         return xy, camera[2] * (1.0 - scale)
 
-    def _front_drop(self, fit: LocalGroundResult, dt: float, travel: float) -> float:
-        """How far (m) the front wheels came down in the pair, 0 if they did not.
-
-        0 also when it lifted no wheel, or base_link rose with it (a rear wheel climbing).
-        """
-        if self._wheel_lift(fit.rotation, dt, travel) <= _IRREGULAR_LIFT:
-            return 0.0
-        beyond = self._pitch_beyond_road(fit.rotation, travel)
-        drop = self.hinge * (float(fit.rotation[1]) if beyond is None else beyond)
-        return drop if float(fit.rotation[2]) < _DROP_RISE_SHARE * drop else 0.0
-
     def _pitch_beyond_road(self, rotation: np.ndarray, travel: float) -> float | None:
         """The pair's pitch (rad, nose down) beyond the remembered road's curve over ``travel``.
 
         None until the history has the road under both axles.
         """
-        curve = self.profile.pitch_change(self.hinge, _HALF_TRACK, travel)
+        curve = self.profile.pitch_change(self.hinge, HALF_TRACK, travel)
         return None if curve is None else float(rotation[1]) - curve
-
-    def _wheel_lift(self, rotation: np.ndarray, dt: float, travel: float) -> float:
-        """How far a wheel was lifted (m): the rotation beyond what the body turns.
-
-        A pitch the remembered road explains (a hill's curve under the wheels) lifts no wheel
-        (on a rendered drive over hills, grades, camber and bumps, 20 of 59 lifts were such,
-        and t_rel was 0.57 % with them, 0.29 without). Near a bump the road's history is
-        unsure, so the smaller of the pitch and its excess over the road's counts.
-        """
-        excess = self._pitch_beyond_road(rotation, travel)
-        turn = np.abs(rotation[:2])
-        if excess is not None:
-            turn[1] = min(turn[1], abs(excess))
-        beyond = np.maximum(turn
-                            - _WHEEL_LIFT_SIGMAS * np.sqrt(self.sprung.rate2) * dt, 0.0)
-        return float(_HALF_TRACK * beyond[0] + self.hinge * beyond[1])
 
     def _learn_rate(self, fit: LocalGroundResult, dt: float) -> None:
         """How fast the vehicle really rotates, as the attitude filter learns its rate."""
