@@ -108,3 +108,20 @@ def test_nothing_is_read_until_the_wheels_stand_on_seen_ground_and_bumps_are_lef
         return profile.camera_tilt(WHEELBASE, 1.0)[0]
     np.testing.assert_allclose(drive(rough=True), 0.0, atol=1e-12)
     assert abs(drive(rough=False)[1]) > np.radians(0.1)  # measured 0.16 deg
+
+
+def test_a_view_that_begins_past_the_wheels_is_sampled_where_it_was_seen():
+    """A camera that sees the road from 1 m past its front wheels: the pair's surface (a
+    grade and a curvature, hinged at the front axle) is sampled from 0.5 m into the view,
+    each sample the quadratic's own slope there (z = ep u + k u^2 / 2, u past the hinge);
+    from a view that begins before the wheels, from 0.5 m past the hinge as before."""
+    ep, k = 0.01, 0.02
+    surface = np.array([ep, 0.0, k, 0.0, 0.0])
+    for seen_from, first in ((1.0, WHEELBASE + 1.5), (0.0, WHEELBASE + 0.5)):
+        profile = RoadProfile.empty().with_pair(
+            np.zeros(3), np.zeros(2), surface, np.eye(5) * 1e-8, np.zeros(2), WHEELBASE,
+            False, seen_from=seen_from)
+        x = profile.points[:, 0]
+        np.testing.assert_allclose(x, first + np.arange(4.0), atol=1e-12)
+        np.testing.assert_allclose(profile.gradients[:, 0], ep + k * (x - WHEELBASE),
+                                   atol=1e-12)

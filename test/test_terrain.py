@@ -532,3 +532,27 @@ def test_the_far_tracks_are_left_out_only_where_the_ground_ahead_bends():
     assert share['hills'] > 0.6, share
 
 
+
+
+def test_the_road_s_history_is_sampled_where_a_far_looking_view_begins():
+    """A camera whose view begins 1.05 m past the front wheels (a windshield's): after a pair
+    the road's history holds the road from 0.5 m into that view (moved back by the step), not
+    from 0.5 m past the wheels, where it saw nothing; a view that begins before the wheels is
+    sampled from 0.5 m past them."""
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(3.8, 6.0, 300), rng.uniform(-2.0, 2.0, 300)
+    step = np.array([0.3, 0.0, 0.0])
+    m1, m2 = _observe(np.c_[x, y, np.zeros_like(x)], MOUNT, step, np.zeros(2))
+    model = TransferModel(*MOUNT.ground_to_optical(), 500.0, MOUNT)
+    for near, first in ((HINGE + 1.05, HINGE + 1.55), (HINGE - 0.3, HINGE + 0.5)):
+        ground = LocalGroundFilter(MOUNT, rates=np.array([0.5, 0.5, 0.3]), wheelbase=HINGE,
+                                   self_calibrate=False)
+        ground.see_ground((near, 12.0))
+        start = RansacResult(step + [0.01, 0.0, 0.0], np.eye(3) * 1e-4,
+                             np.ones(len(x), bool), 1, 0.3)
+        result, _ = ground.refine(start, np.c_[m1, np.ones(len(m1))], m2, MOUNT, model,
+                                  dt=0.05, inlier_threshold=2.0, start_threshold=8.0,
+                                  min_inliers=10)
+        ground.advance(result.motion)
+        np.testing.assert_allclose(ground.profile.points[:, 0],
+                                   first + np.arange(4.0) - result.motion[0], atol=1e-6)

@@ -121,6 +121,7 @@ class LocalGroundFilter:
         self.rates = np.asarray(rates, dtype=float)  # upper bounds: roll, pitch, height rates
         self.wheelbase = wheelbase  # m ahead of base_link: the front axle, as configured
         self.hinge = wheelbase  # m: where the road ahead may bend from (see_ground)
+        self.seen_from = 0.0  # m past the hinge where the camera's view begins (see_ground)
         self.track = track  # m between the front wheels
         self.half_width = half_width  # m either side of base_link: the surface's tracks
         self.self_calibrate = self_calibrate
@@ -157,6 +158,13 @@ class LocalGroundFilter:
         """
         moved = view is not None and self.wheelbase > 0.5 * (view[0] + view[1])
         self.hinge = max(view[0], 0.0) if moved else self.wheelbase
+        # A view that begins past the front wheels (a camera high or looking far: a van's, a
+        # windshield's) has the road's history sampled on road it saw, from where it begins:
+        # sampled from the hinge, the surface carried back there stood for the road under the
+        # wheels (a windshield camera 1.3 m up, 6 deg down, the road from 0.6 m past the front
+        # wheels: all four terrains sprung 0.550 -> 0.433 % t_rel, a van's camera 0.286 ->
+        # 0.248, the issue's camera unchanged: its view begins before the front wheels).
+        self.seen_from = 0.0 if view is None else max(view[0] - self.hinge, 0.0)
 
     def wheels_inside_view(self) -> bool:
         """Whether the front wheels were set beyond the middle of the camera's view (see_ground).
@@ -276,7 +284,8 @@ class LocalGroundFilter:
                        min_inliers=min_inliers, rates=self.rates, rate2=self.rate2,
                        body_rate2=self.sprung.rate2,
                        road_turn=self.profile.pitch_change(self.hinge, HALF_TRACK, travel),
-                       front_axle=self.hinge, track=self.track)
+                       front_axle=self.hinge, track=self.track,
+                       samples_from=self.hinge + self.seen_from)
         try:
             shown = np.flatnonzero(~(beyond | on_bumps))
             fit, prior, hinge, rough = pair.on_tracks(est.motion, v1, m2, shown, prior, hinge)
@@ -298,7 +307,8 @@ class LocalGroundFilter:
             self.side_drift = self.side_drift + min(travel / _SIDE_MEMORY_M, 1.0) * (
                 sides - self.side_drift)
         if on_bumps.any():
-            rough = rough | samples_near(self.hinge, np.array(self.ahead.bumps.ahead))
+            rough = rough | samples_near(self.hinge + self.seen_from,
+                                         np.array(self.ahead.bumps.ahead))
         lifted = pair.wheel_lift(fit.rotation)
         self.ahead = self.ahead.after_pair(
             fit, prior.surface, lifted=lifted > IRREGULAR_LIFT, rate_samples=self.rate_samples,
@@ -415,7 +425,7 @@ class LocalGroundFilter:
             turn = 0.0
         self.profile = self.profile.with_pair(np.asarray(motion, dtype=float), rotation[:2],
                                               surface, surface_cov, used, self.hinge,
-                                              self.rough_ahead)
+                                              self.rough_ahead, seen_from=self.seen_from)
         seen = self.profile.camera_tilt(self.hinge, HALF_TRACK)
         self.history_reads = self.history_reads or seen is not None
         if not self.history_reads:

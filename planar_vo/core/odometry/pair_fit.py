@@ -90,12 +90,14 @@ _SLIDE_FLOOR = 0.005  # m
 _HELD_SHARE = 0.1
 
 
-def samples_near(front_axle: float, xs: np.ndarray) -> np.ndarray:
+def samples_near(samples_from: float, xs: np.ndarray) -> np.ndarray:
     """Which of the road history's samples ahead (SAMPLES_AHEAD) lie near a band or bump.
 
-    ``xs``: where the bands or bumps are (m, base_link); near: within BAND_REACH.
+    ``samples_from``: where they are taken from (m ahead of base_link: the front axle, or
+    where the view begins past it); ``xs``: where the bands or bumps are (m, base_link);
+    near: within BAND_REACH.
     """
-    ahead = front_axle + SAMPLES_AHEAD
+    ahead = samples_from + SAMPLES_AHEAD
     return np.any(np.abs(ahead[:, None] - xs[None, :]) < BAND_REACH, axis=1)
 
 
@@ -108,7 +110,8 @@ class PairFit:
     squared (roll, pitch); ``road_turn``: the remembered road's pitch change under the wheels
     over the travel (rad, nose down; None while the history has not seen it);
     ``front_axle``: m ahead of base_link, where the road bends from; ``track``: m between the
-    front wheels.
+    front wheels; ``samples_from``: m ahead of base_link, where the road history's samples
+    are taken from (see samples_near).
     """
 
     camera: Mounting
@@ -124,6 +127,7 @@ class PairFit:
     road_turn: float | None
     front_axle: float
     track: float
+    samples_from: float
 
     def on_tracks(self, motion: np.ndarray, v1: np.ndarray, m2: np.ndarray, shown: np.ndarray,
                   prior: GroundPrior, hinge: Hinge,
@@ -294,7 +298,7 @@ class PairFit:
         if keep is None:
             return fit, rough
         went = wheel_plane_distance(self.camera, v1[~keep])
-        rough = samples_near(self.front_axle, went)
+        rough = samples_near(self.samples_from, went)
         if np.count_nonzero(keep) < self.min_inliers:
             return fit, rough
         try:

@@ -24,7 +24,7 @@ import numpy as np
 
 __all__ = ['SAMPLES_AHEAD', 'RoadProfile']
 
-SAMPLES_AHEAD = np.array([0.5, 1.5, 2.5, 3.5])  # m past the hinge where a pair samples the road
+SAMPLES_AHEAD = np.array([0.5, 1.5, 2.5, 3.5])  # m past the hinge (or the view's start) sampled
 _BINS = 3  # the wheelbase in this many parts, each needs a sample: the chord's mean gradient
 _KEEP_BEHIND = 1.0  # m behind the rear axle a sample is still kept
 _MAX_SAMPLES = 400
@@ -62,7 +62,7 @@ class RoadProfile:
 
     def with_pair(self, motion: np.ndarray, rotation: np.ndarray, surface: np.ndarray,
                   surface_cov: np.ndarray, tilt: np.ndarray, hinge: float,
-                  rough: bool | np.ndarray) -> RoadProfile:
+                  rough: bool | np.ndarray, *, seen_from: float = 0.0) -> RoadProfile:
         """Add what a frame pair saw and move on to base_link of its second frame.
 
         Args:
@@ -73,16 +73,20 @@ class RoadProfile:
             surface_cov: (5, 5) its covariance.
             tilt: (2,) roll, pitch of the camera to that wheel plane beyond the configured
                 mounting (the learned static tilt and the body's) the pair used.
+            seen_from: m past ``hinge`` where the camera's view of the road begins (0 when
+                it begins before the hinge): the samples (SAMPLES_AHEAD) are taken from there,
+                on road the pair saw, not on the surface carried back to the hinge.
         """
         ep, er, k, kxy, _ = surface
+        offsets = seen_from + SAMPLES_AHEAD
         # The road's gradient relative to the configured camera's base plane: the pair's
         # wheel plane is that plane tilted by -tilt (nose down lowers the gradient ahead).
-        along = ep + tilt[1] + k * SAMPLES_AHEAD
-        across = er - tilt[0] + kxy * SAMPLES_AHEAD
-        basis = np.stack([np.ones_like(SAMPLES_AHEAD), SAMPLES_AHEAD])
+        along = ep + tilt[1] + k * offsets
+        across = er - tilt[0] + kxy * offsets
+        basis = np.stack([np.ones_like(offsets), offsets])
         var_along = np.einsum('in,ij,jn->n', basis, surface_cov[np.ix_([0, 2], [0, 2])], basis)
         var_across = np.einsum('in,ij,jn->n', basis, surface_cov[np.ix_([1, 3], [1, 3])], basis)
-        ahead = np.c_[hinge + SAMPLES_AHEAD, np.zeros_like(SAMPLES_AHEAD)]
+        ahead = np.c_[hinge + offsets, np.zeros_like(offsets)]
         points = np.vstack([self.points, ahead])
         gradients = np.vstack([self.gradients, self.level + np.c_[along, across]])
         variances = np.r_[self.variances, 0.5 * (var_along + var_across)]
