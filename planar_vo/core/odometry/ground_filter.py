@@ -3,11 +3,11 @@
 Each frame pair is refined over the road surface ahead (:mod:`planar_vo.core.estimation.
 local_ground`, as :mod:`planar_vo.core.odometry.pair_fit` tries it): the surface's grade,
 cross-slope, curvature and twist relative to the wheels, and the vehicle's rotation between
-the frames. What one pair learned is the next pair's prior,
-moved on by the distance travelled (the road ahead changes with distance, not time). The mean
-grade and cross-slope over a drive are the camera's static pitch and roll offsets (the road
-ahead is, on average, the road the wheels later stand on): self-calibration learns them with
-the yaw and camera_x (:class:`MountingCalibrator`).
+the frames. What one pair learned is the next pair's prior, moved on by the distance
+travelled (the road ahead changes with distance, not time). The mean grade and cross-slope
+over a drive are the camera's static pitch and roll offsets (the road ahead is, on average,
+the road the wheels later stand on): self-calibration learns them with the yaw and
+camera_x (:class:`MountingCalibrator`).
 """
 
 from __future__ import annotations
