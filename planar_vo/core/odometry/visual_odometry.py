@@ -13,7 +13,7 @@ import copy
 import math
 import time
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -55,6 +55,16 @@ _MASK_REDRAW_YAW = np.radians(0.5)
 _OUTLIER_DROP = 3.0  # tracks this many inlier thresholds off the motion are dropped
 # Images over this many pixels are binned by default (see binning_for).
 _BINNING_ABOVE = 1.5e6
+
+
+class Deskew(NamedTuple):
+    """A pair's tracks as a rolling shutter read them (see VisualOdometry._at_stamps)."""
+
+    points: tuple[np.ndarray, np.ndarray]  # (N, 2) ground points in the two frames
+    rows: tuple[np.ndarray, np.ndarray]  # (N,) their pixel rows in the two frames
+    dt: float  # s between the frames' stamps
+    model: TransferModel
+    rate: np.ndarray | None  # the twist's rate of change over the pair (None: constant)
 
 
 class VisualOdometry:
@@ -452,17 +462,17 @@ class VisualOdometry:
                         # The attitude and local-ground refinements see a global shutter:
                         # each observation moved to its frame's stamp by the 3-DoF motion,
                         # then again by the motion they refine from it.
-                        deskew = ((p1[ok], p2[ok]), (ref_px[ok, 1], cur_px[ok, 1]), dt, model,
-                                  rate)
-                        rays_1, m_2 = self._at_stamps(est.motion, *deskew)
+                        deskew = Deskew((p1[ok], p2[ok]), (ref_px[ok, 1], cur_px[ok, 1]), dt,
+                                        model, rate)
+                        rays_1, m_2 = self._at_stamps(est.motion, deskew)
                         first = self._trial_refine(est, rays_1, m_2, model, stamp)
                         # The twist's rate of change from the last pair to this one (half a
                         # pair late, not one): with a twist changing linearly it is exact.
                         later = self.integrator.twist_at_stamp.rate_to(self._ref_stamp, stamp,
                                                                        first.motion)
                         if rate is not None and later is not None:
-                            deskew = (*deskew[:-1], later)
-                        rays_1, m_2 = self._at_stamps(first.motion, *deskew)
+                            deskew = deskew._replace(rate=later)
+                        rays_1, m_2 = self._at_stamps(first.motion, deskew)
                     est = self._refine_tilted(est, rays_1, m_2, model, stamp)
             self._require_inliers(est.inliers)
         except PoseEstimationError as err:
@@ -511,7 +521,7 @@ class VisualOdometry:
         refined = isinstance(tilt, LocalGroundFilter) and tilt.solution is not None
         if self.shutter_learning.wants(refined):
             rows = (ref_px[ok, 1], cur_px[ok, 1])
-            deskew = ((p1[ok], p2[ok]), rows, dt, model, self._twist_rate())
+            deskew = Deskew((p1[ok], p2[ok]), rows, dt, model, self._twist_rate())
             if self.shutter_learning.calibrator is None:
                 self._watch_shutter(planar, est.motion, p1_ok, m2[ok], deskew)
             elif refined:
@@ -555,16 +565,13 @@ class VisualOdometry:
             return est
         return RansacResult(motion, covariance, inliers, est.hypotheses, rms)
 
-    def _at_stamps(self, motion: np.ndarray, points: tuple[np.ndarray, np.ndarray],
-                   rows: tuple[np.ndarray, np.ndarray], dt: float, model: TransferModel,
-                   rate: np.ndarray | None = None, shutter: ShutterModel | None = None,
-                   ) -> tuple[np.ndarray, np.ndarray]:
+    def _at_stamps(self, motion: np.ndarray, deskew: Deskew,
+                   shutter: ShutterModel | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(frame-1 rays, frame-2 normalized points) as a global shutter at the stamps saw them.
 
-        ``points``: the tracks' ground points in both frames; ``rows``: their pixel rows;
-        ``rate``: the twist's rate of change over the pair (None: constant); ``shutter``:
-        the readout to take (None: the one in use).
+        ``shutter``: the readout to take (None: the one in use).
         """
+        points, rows, dt, model, rate = deskew
         if isinstance(self._tilt_filter, LocalGroundFilter):  # the road ahead is not flat
             points = [self._tilt_filter.on_surface(p, model.mounting.position) for p in points]
         else:
@@ -630,22 +637,18 @@ class VisualOdometry:
         self.counters['stationary'] += 1
         return self._result(stamp, FrameStatus.OK, t0, **stats)
 
-    def _surface_residuals(self, motion: np.ndarray, deskew: tuple) -> SurfaceResiduals:
-        """The local ground's residuals of this pair seen through a given shutter.
-
-        ``deskew``: the ``points, rows, dt, model, rate`` of :meth:`_at_stamps`.
-        """
+    def _surface_residuals(self, motion: np.ndarray, deskew: Deskew) -> SurfaceResiduals:
+        """The local ground's residuals of this pair seen through a given shutter."""
         def residuals(shutter: ShutterModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             return self._tilt_filter.residuals_without_curvature(
-                *self._at_stamps(motion, *deskew, shutter=shutter))
+                *self._at_stamps(motion, deskew, shutter))
         return residuals
 
     def _watch_shutter(self, planar: RansacResult, motion: np.ndarray, p1: np.ndarray,
-                       m2: np.ndarray, deskew: tuple) -> None:
+                       m2: np.ndarray, deskew: Deskew) -> None:
         """Add this pair's two readings to the watch (see ShutterLearning.watch_pair)."""
-        rows, dt, model = deskew[1], deskew[2], deskew[3]
         found = self.shutter_learning.watch_pair(
-            planar, p1, m2, rows, self.camera.height, dt, model,
+            planar, p1, m2, deskew.rows, self.camera.height, deskew.dt, deskew.model,
             self._surface_residuals(motion, deskew), step_length(motion))
         if found:
             # What self-calibration learned so far, it learned through the shear: it starts
