@@ -416,9 +416,12 @@ class LocalGroundFilter:
         self.ahead = self.ahead.moved(motion, float(camera[0]), self.hinge)
         self.camera_height = float(camera[2])
         self.last_fit = self.solution = None
-        turn = self._pitch_beyond_road(rotation, float(motion[0]))  # the body's, if no lift
+        # The pair's pitch (nose down) beyond the remembered road's curve: the body's turn, if
+        # no wheel lifted (None until the history has the road under both axles).
+        curve = self.profile.pitch_change(self.hinge, HALF_TRACK, float(motion[0]))
+        turn = None if curve is None else float(rotation[1]) - curve
         if (turn is not None and self.wheel_lift <= IRREGULAR_LIFT
-                and float(motion[0]) > _HISTORY_TRAVEL and self._flat_pair(surface, motion)):
+                and float(motion[0]) > _HISTORY_TRAVEL and self._flat_pair(surface, curve)):
             self.sprung = self.sprung.with_pivot_sample(turn, float(rotation[2]), dt,
                                                         self.calibrator.working.x)
         if turn is None or self.wheel_lift > IRREGULAR_LIFT:
@@ -448,19 +451,18 @@ class LocalGroundFilter:
         self.sprung = sprung.moved(change, rotation[2], camera, dt,
                                    read_before=self.sprung.tilt_read)
 
-    def _flat_pair(self, surface: np.ndarray, motion: np.ndarray) -> bool:
+    def _flat_pair(self, surface: np.ndarray, curve: float) -> bool:
         """Whether the last pair drove on flat road: where its body's pivot is learned.
 
         Nothing irregular, the road ahead level with the wheels (_PIVOT_FLAT_GRADE) and
         straight (_PIVOT_FLAT_CURVATURE), and the remembered road under the wheels not
-        turning them (_PIVOT_FLAT_TURN over the pair).
+        turning them (``curve``, rad over the pair, under _PIVOT_FLAT_TURN).
         """
         if self.irregular or np.any(np.abs(surface[:2]) >= _PIVOT_FLAT_GRADE):
             return False
         if np.any(np.abs(surface[2:]) >= _PIVOT_FLAT_CURVATURE):
             return False
-        curve = self.profile.pitch_change(self.hinge, HALF_TRACK, float(motion[0]))
-        return curve is not None and abs(curve) < _PIVOT_FLAT_TURN
+        return abs(curve) < _PIVOT_FLAT_TURN
 
     def on_surface(self, points: np.ndarray, camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Points (N, 2) on the wheels' plane moved along their rays onto the surface ahead.
@@ -481,14 +483,6 @@ class LocalGroundFilter:
         scale = np.where(scale > 0.0, scale, 1.0)
         xy = camera[:2] + scale[:, None] * (points - camera[:2])
         return xy, camera[2] * (1.0 - scale)
-
-    def _pitch_beyond_road(self, rotation: np.ndarray, travel: float) -> float | None:
-        """The pair's pitch (rad, nose down) beyond the remembered road's curve over ``travel``.
-
-        None until the history has the road under both axles.
-        """
-        curve = self.profile.pitch_change(self.hinge, HALF_TRACK, travel)
-        return None if curve is None else float(rotation[1]) - curve
 
     def _learn_rate(self, fit: LocalGroundResult, dt: float) -> None:
         """How fast the vehicle really rotates, as the attitude filter learns its rate."""
