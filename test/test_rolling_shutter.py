@@ -13,9 +13,10 @@ from planar_vo.core import config
 from planar_vo.core.estimation import rolling_shutter
 from planar_vo.core.estimation.ransac import TransferModel, estimate_motion, transfer_errors
 from planar_vo.core.estimation.rolling_shutter import ShutterModel, accelerated, at_stamp
-from planar_vo.core.geometry.camera import Mounting
+from planar_vo.core.geometry.camera import Mounting, rays_through
 from planar_vo.core.geometry.se2 import circular_motion, power, twist_motion
 from planar_vo.core.metrics import metrics
+from planar_vo.core.odometry.deskew import Deskew
 from planar_vo.core.odometry.ground_filter import LocalGroundFilter
 from planar_vo.io import resources
 from planar_vo.synth.shutter import RollingShutter, RowPoses
@@ -135,6 +136,30 @@ def test_a_changing_twist_is_carried_into_each_tracks_motion_and_the_de_skew():
         assert 460.0 * np.abs(got - want).max() < 5e-3  # px
     assert 460.0 * np.abs(at_stamp(p1, tau1, motion, dt, model)
                           - observe(mounting, world)).max() > 0.02
+
+
+def test_a_pairs_tracks_are_carried_to_their_stamps_by_their_rows_times():
+    """Driving straight at 8 m/s, a ground point read ``tau`` after a frame's stamp was seen
+    from base_link ``8 tau`` further on: carried back by that, both frames' observations are a
+    global shutter's at the stamps (closed form); a global shutter's are left as seen."""
+    mounting = Mounting(x=1.2, y=0.0, height=1.1, pitch=np.radians(8.0))
+    model = TransferModel(*mounting.ground_to_optical(), 460.0, mounting)
+    height, dt, motion = 480, 0.05, np.array([0.4, 0.0, 0.0])
+    rng = np.random.default_rng(5)
+    world = np.c_[rng.uniform(3, 12, 50), rng.uniform(-2, 2, 50)]  # base_link at the 1st stamp
+    rows = rng.uniform(250, 479, 50), rng.uniform(250, 479, 50)
+    rolling = ShutterModel(0.03)
+    tau1, tau2 = (rolling.row_time(v, height) for v in rows)
+    p1 = world - np.c_[8.0 * tau1, 0 * tau1]
+    p2 = world - np.c_[0.4 + 8.0 * tau2, 0 * tau2]
+    pair = Deskew((p1, p2), rows, dt, model, None)
+    rays1, m2 = pair.at_stamps(motion, rolling, height, ground=None)
+    np.testing.assert_allclose(rays1, rays_through(observe(mounting, world)), atol=1e-12)
+    np.testing.assert_allclose(m2, observe(mounting, world - [0.4, 0.0]), atol=1e-12)
+    assert 460.0 * np.abs(observe(mounting, p2) - m2).max() > 1.0  # px: what it carried
+    rays1, m2 = pair.at_stamps(motion, ShutterModel(0.0), height, ground=None)
+    np.testing.assert_allclose(rays1, rays_through(observe(mounting, p1)), atol=1e-12)
+    np.testing.assert_allclose(m2, observe(mounting, p2), atol=1e-12)
 
 
 def test_the_prewarp_and_prediction_follow_each_rows_time():

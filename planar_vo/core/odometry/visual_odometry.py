@@ -13,7 +13,7 @@ import copy
 import math
 import time
 from collections.abc import Mapping
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
@@ -33,7 +33,6 @@ from planar_vo.core.estimation.rolling_shutter import (
     ReadoutEstimate,
     ShutterModel,
     accelerated,
-    at_stamp,
 )
 from planar_vo.core.frontend.ground_frontend import GroundFrontEnd
 from planar_vo.core.frontend.tracker import Tracker
@@ -41,6 +40,7 @@ from planar_vo.core.geometry.camera import CameraModel, Mounting, bin_image, ray
 from planar_vo.core.geometry.se2 import compose, inverse_motion, step_length, twist_motion
 from planar_vo.core.odometry.advice import calibration_report, ground_advice
 from planar_vo.core.odometry.attitude_filter import AttitudeFilter, AttitudeNoise
+from planar_vo.core.odometry.deskew import Deskew
 from planar_vo.core.odometry.frame_gate import FrameGate
 from planar_vo.core.odometry.ground_filter import LocalGroundFilter
 from planar_vo.core.odometry.pose_integrator import PoseIntegrator
@@ -55,16 +55,6 @@ _MASK_REDRAW_YAW = np.radians(0.5)
 _OUTLIER_DROP = 3.0  # tracks this many inlier thresholds off the motion are dropped
 # Images over this many pixels are binned by default (see binning_for).
 _BINNING_ABOVE = 1.5e6
-
-
-class Deskew(NamedTuple):
-    """A pair's tracks as a rolling shutter read them (see VisualOdometry._at_stamps)."""
-
-    points: tuple[np.ndarray, np.ndarray]  # (N, 2) ground points in the two frames
-    rows: tuple[np.ndarray, np.ndarray]  # (N,) their pixel rows in the two frames
-    dt: float  # s between the frames' stamps
-    model: TransferModel
-    rate: np.ndarray | None  # the twist's rate of change over the pair (None: constant)
 
 
 class VisualOdometry:
@@ -432,22 +422,23 @@ class VisualOdometry:
         if self._tilt_filter is not None:
             ok &= self.front.window_inside(ref_px) & self.front.window_inside(cur_px)
         n = int(np.count_nonzero(ok))
-        # A rolling shutter: each track's motion is the frame's stretched by its rows' times.
-        dt = stamp - self._ref_stamp
-        stretch = self.shutter.stretch(ref_px[ok, 1], cur_px[ok, 1], self.camera.height, dt)
-        # ... and by how its twist changes over the pair (the last two pairs' rate of change).
-        rate = None if stretch is None else self._twist_rate()
-        p1_ok = p1[ok]
-        if rate is not None:
-            p1_ok = accelerated(p1_ok, self._row_times(ref_px[ok, 1], cur_px[ok, 1]), dt, rate,
-                                self.twist)
+        # A rolling shutter: each track's motion is the frame's stretched by its rows' times
+        # and by how its twist changes over the pair (the last two pairs' rate of change).
+        dt, rows = stamp - self._ref_stamp, (ref_px[ok, 1], cur_px[ok, 1])
+        stretch = self.shutter.stretch(*rows, self.camera.height, dt)
+        pair = Deskew((p1[ok], p2[ok]), rows, dt, model,
+                      None if stretch is None else self._twist_rate())
+        p1_ok, m2_ok = p1[ok], m2[ok]
+        if pair.rate is not None:
+            p1_ok = accelerated(p1_ok, pair.row_times(self.shutter, self.camera.height), dt,
+                                pair.rate, self.twist)
         t_pose = time.perf_counter()
         try:
             if self.ransac_method == 'opencv_homography':
-                est = planar = self._estimate_with_opencv(p1[ok], m2[ok], model)
+                est = planar = self._estimate_with_opencv(p1[ok], m2_ok, model)
             else:
                 est = estimate_motion(
-                    p1_ok, p2[ok], m2[ok], model, method=self.ransac_method,
+                    p1_ok, p2[ok], m2_ok, model, method=self.ransac_method,
                     threshold_px=self._hypothesis_threshold(stamp),
                     confidence=self.ransac_confidence,
                     circular_refine=self.circular_refine, rng=self._rng, stretch=stretch)
@@ -455,25 +446,10 @@ class VisualOdometry:
                 if self._tilt_filter is not None:
                     # The standstill test's planar motion, at the inlier threshold (the
                     # hypotheses' is wider here; the test's thresholds are the rigid model's).
-                    planar = self._planar_at_inlier_threshold(est, p1_ok, m2[ok], model,
+                    planar = self._planar_at_inlier_threshold(est, p1_ok, m2_ok, model,
                                                               stretch)
-                    rays_1, m_2 = rays1[ok], m2[ok]
-                    if stretch is not None:
-                        # The attitude and local-ground refinements see a global shutter:
-                        # each observation moved to its frame's stamp by the 3-DoF motion,
-                        # then again by the motion they refine from it.
-                        deskew = Deskew((p1[ok], p2[ok]), (ref_px[ok, 1], cur_px[ok, 1]), dt,
-                                        model, rate)
-                        rays_1, m_2 = self._at_stamps(est.motion, deskew)
-                        first = self._trial_refine(est, rays_1, m_2, model, stamp)
-                        # The twist's rate of change from the last pair to this one (half a
-                        # pair late, not one): with a twist changing linearly it is exact.
-                        later = self.integrator.twist_at_stamp.rate_to(self._ref_stamp, stamp,
-                                                                       first.motion)
-                        if rate is not None and later is not None:
-                            deskew = deskew._replace(rate=later)
-                        rays_1, m_2 = self._at_stamps(first.motion, deskew)
-                    est = self._refine_tilted(est, rays_1, m_2, model, stamp)
+                    est = self._refine_on_ground(est, rays1[ok], m2_ok, model, stamp,
+                                                 None if stretch is None else pair)
             self._require_inliers(est.inliers)
         except PoseEstimationError as err:
             pose_ms = 1e3 * (time.perf_counter() - t_pose)
@@ -512,39 +488,18 @@ class VisualOdometry:
               and self.standstill.quiet(planar.motion, planar.covariance,
                                         None if est is planar else est.motion)):
             # A stop: the previous frame stays the reference, this frame's motion is none.
-            rows = idx[ok][est.inliers]
+            kept = idx[ok][est.inliers]
             self.standstill.enter(HeldReference(
-                reference_image, self.tracker.reference[rows].copy(),
-                self.tracker.reference_normalized[rows].copy(), previous), stamp)
+                reference_image, self.tracker.reference[kept].copy(),
+                self.tracker.reference_normalized[kept].copy(), previous), stamp)
             return self._hold_still(stamp, t0, previous, est, stats)
-        tilt = self._tilt_filter  # the readout learned or watched for, before it moves on
-        refined = isinstance(tilt, LocalGroundFilter) and tilt.solution is not None
-        if self.shutter_learning.wants(refined):
-            rows = (ref_px[ok, 1], cur_px[ok, 1])
-            deskew = Deskew((p1[ok], p2[ok]), rows, dt, model, self._twist_rate())
-            if self.shutter_learning.calibrator is None:
-                self._watch_shutter(planar, est.motion, p1_ok, m2[ok], deskew)
-            elif refined:
-                self.shutter_learning.read_on_surface(
-                    self._surface_residuals(est.motion, deskew), dt)
-            else:
-                self.shutter_learning.read_on_plane(planar, p1_ok, m2[ok], rows,
-                                                    self.camera.height, dt, model)
+        self._read_shutter(planar, est.motion, p1_ok, m2_ok, pair)
         self.integrator.add(start, stamp - start, step, est.covariance)
         if self.ground is not None:
             self.ground.advance(est.motion)
         self._ref_stamp = stamp
-        # Tracks far off the motion are obstacles or mismatches: free their grid cells.
-        errors = transfer_errors(est.motion, p1_ok, m2[ok], model, stretch)
-        drop = idx[ok][errors > _OUTLIER_DROP * self.inlier_threshold]
-        if _receding(est.motion, mounting):
-            # Where the ground seen moves away from the camera (reversing with a camera that
-            # looks ahead, driving on with one that looks back) its tracks drift above the
-            # horizon margin, never to be used again, and kept the track budget (13 of 362
-            # usable on a rendered stop-and-go drive; a rear camera restarted every 11
-            # frames): they go.
-            drop = np.union1d(drop, idx[~v2])
-        self.front.drop(drop)
+        self._drop_tracks(est.motion, p1_ok, m2_ok, idx[ok], idx[~v2], mounting, model,
+                          stretch)
         self.counters['estimated'] += 1
         used = cur_px[ok]
         return self._result(
@@ -552,6 +507,66 @@ class VisualOdometry:
             inliers=int(np.count_nonzero(est.inliers)), hypotheses=est.hypotheses,
             rms_px=est.rms_px, pose_ms=pose_ms,
             inlier_points=used[est.inliers], outlier_points=used[~est.inliers])
+
+    def _refine_on_ground(self, est: RansacResult, rays1: np.ndarray, m2: np.ndarray,
+                          model: TransferModel, stamp: float,
+                          deskew: Deskew | None) -> RansacResult:
+        """``est`` refined by the tilt filter, a rolling shutter's tracks at the stamps.
+
+        The attitude and local-ground refinements see a global shutter: with a rolling one
+        (``deskew``) each observation is moved to its frame's stamp by the 3-DoF motion, then
+        again by the motion they refine from it.
+        """
+        if deskew is not None:
+            rays1, m2 = self._at_stamps(est.motion, deskew)
+            first = self._trial_refine(est, rays1, m2, model, stamp)
+            # The twist's rate of change from the last pair to this one (half a pair late, not
+            # one): with a twist changing linearly it is exact.
+            later = self.integrator.twist_at_stamp.rate_to(self._ref_stamp, stamp, first.motion)
+            if deskew.rate is not None and later is not None:
+                deskew = deskew._replace(rate=later)
+            rays1, m2 = self._at_stamps(first.motion, deskew)
+        return self._refine_tilted(est, rays1, m2, model, stamp)
+
+    def _read_shutter(self, planar: RansacResult, motion: np.ndarray, p1: np.ndarray,
+                      m2: np.ndarray, pair: Deskew) -> None:
+        """Give this pair to the readout's learning or watch, when it wants it.
+
+        ``p1``: the frame-1 ground points the hypotheses took (moved for a changing twist);
+        read before the pair moves the integrator and the ground on.
+        """
+        tilt = self._tilt_filter
+        refined = isinstance(tilt, LocalGroundFilter) and tilt.solution is not None
+        if not self.shutter_learning.wants(refined):
+            return
+        deskew = pair._replace(rate=self._twist_rate())
+        if self.shutter_learning.calibrator is None:
+            self._watch_shutter(planar, motion, p1, m2, deskew)
+        elif refined:
+            self.shutter_learning.read_on_surface(self._surface_residuals(motion, deskew),
+                                                  deskew.dt)
+        else:
+            self.shutter_learning.read_on_plane(planar, p1, m2, deskew.rows,
+                                                self.camera.height, deskew.dt, deskew.model)
+
+    def _drop_tracks(self, motion: np.ndarray, p1: np.ndarray, m2: np.ndarray,
+                     used: np.ndarray, above_margin: np.ndarray, mounting: Mounting,
+                     model: TransferModel, stretch: np.ndarray | None) -> None:
+        """Free the grid cells of tracks far off ``motion``: obstacles or mismatches.
+
+        ``used``: the tracker's indices of ``p1`` and ``m2``; ``above_margin``: the tracks
+        above the horizon margin in the current frame.
+        """
+        errors = transfer_errors(motion, p1, m2, model, stretch)
+        drop = used[errors > _OUTLIER_DROP * self.inlier_threshold]
+        if _receding(motion, mounting):
+            # Where the ground seen moves away from the camera (reversing with a camera that
+            # looks ahead, driving on with one that looks back) its tracks drift above the
+            # horizon margin, never to be used again, and kept the track budget (13 of 362
+            # usable on a rendered stop-and-go drive; a rear camera restarted every 11
+            # frames): they go.
+            drop = np.union1d(drop, above_margin)
+        self.front.drop(drop)
 
     def _planar_at_inlier_threshold(self, est: RansacResult, p1: np.ndarray, m2: np.ndarray,
                                      model: TransferModel,
@@ -567,25 +582,9 @@ class VisualOdometry:
 
     def _at_stamps(self, motion: np.ndarray, deskew: Deskew,
                    shutter: ShutterModel | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(frame-1 rays, frame-2 normalized points) as a global shutter at the stamps saw them.
-
-        ``shutter``: the readout to take (None: the one in use).
-        """
-        points, rows, dt, model, rate = deskew
-        if isinstance(self._tilt_filter, LocalGroundFilter):  # the road ahead is not flat
-            points = [self._tilt_filter.on_surface(p, model.mounting.position) for p in points]
-        else:
-            points = [(p, None) for p in points]
-        m1, m2 = (at_stamp(p, tau, motion, dt, model, rate, centre, height)
-                  for (p, height), tau, centre in zip(points, self._row_times(*rows, shutter),
-                                                      (-dt / 2, dt / 2)))
-        return rays_through(m1), m2
-
-    def _row_times(self, v1: np.ndarray, v2: np.ndarray, shutter: ShutterModel | None = None,
-                   ) -> tuple[np.ndarray, np.ndarray]:
-        """Each track's rows' times relative to their frames' stamps, s."""
-        shutter, height = shutter or self.shutter, self.camera.height
-        return shutter.row_time(v1, height), shutter.row_time(v2, height)
+        """:meth:`Deskew.at_stamps` through ``shutter`` (None: the one in use)."""
+        ground = self._tilt_filter if isinstance(self._tilt_filter, LocalGroundFilter) else None
+        return deskew.at_stamps(motion, shutter or self.shutter, self.camera.height, ground)
 
     def _twist_rate(self) -> np.ndarray | None:
         """The twist's rate of change (3,) over the last two pairs if they end at the reference."""
