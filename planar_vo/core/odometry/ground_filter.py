@@ -59,15 +59,17 @@ _IRREGULAR_INFLATION = 4.0  # its motion's covariance then grows this much
 # Self-calibration of the static tilt (_tilt_sample): from the road ahead only pairs over
 # smooth ground (curvatures and twist two sigmas inside this, 1/m) count; the mean is shrunk by its
 # significance, its samples correlated over about _TERRAIN_CORRELATION_S (a grade every
-# ~15 m). Shrunk at 3 sigmas, not 2: the road's history reads a few hundredths of a degree
-# on a crowned road, which moves the scale by as many hundredths of a percent (rendered
-# camber drives 0.077 / 0.066 -> 0.12 / 0.10 % at 2 sigmas, 0.083 / 0.074 at 3); at 4 a
+# ~15 m). Shrunk at 2 sigmas: at 3 a sprung body's spread kept a mounting 1 deg off in pitch
+# learned at 0.55-0.7 deg over the whole drive (0.309 % t_rel; 0.272 at 2, and 32 drives
+# summed 4.63 -> 4.53 %, none worse by over 0.01). Stop 30 had chosen 3 because the
+# road's history read a few hundredths of a degree on a crowned road (camber drives 0.077 /
+# 0.066 -> 0.12 / 0.10 % at 2 sigmas then; docs/terrain-notes.md has today's); at 4 a
 # sprung car's rolling-shutter drive learned its tilt too late (scale 1.0021, its test's bar
 # 0.002). Samples from the history only while driving forward (standing with traffic
 # crossing, or reversing, its readings moved the pose and lost the tracks).
 _CALM_CURVATURE = 0.01
 _TERRAIN_CORRELATION_S = 3.0
-_SHRINK_SIGMAS = 3.0
+_SHRINK_SIGMAS = 2.0
 _HISTORY_TRAVEL = 0.01  # m: a pair this far forward gives the history's reading
 # The road ahead is read as the camera's tilt only after this much travel (m) in which the
 # history could not read it: a car's camera sees past its front wheels and its history reads
