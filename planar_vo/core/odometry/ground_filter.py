@@ -168,6 +168,11 @@ class LocalGroundFilter:
         # 0.248, the issue's camera unchanged: its view begins before the front wheels).
         self.seen_from = 0.0 if view is None else max(view[0] - self.hinge, 0.0)
 
+    @property
+    def samples_from(self) -> float:
+        """Where the road's history samples each pair, m ahead of base_link (see_ground)."""
+        return self.hinge + self.seen_from
+
     def wheels_inside_view(self) -> bool:
         """Whether the front wheels were set beyond the middle of the camera's view (see_ground).
 
@@ -287,7 +292,7 @@ class LocalGroundFilter:
                        body_rate2=self.sprung.rate2,
                        road_turn=self.profile.pitch_change(self.hinge, HALF_TRACK, travel),
                        front_axle=self.hinge, track=self.track,
-                       samples_from=self.hinge + self.seen_from)
+                       samples_from=self.samples_from)
         try:
             shown = np.flatnonzero(~(beyond | on_bumps))
             fit, prior, hinge, rough = pair.on_tracks(est.motion, v1, m2, shown, prior, hinge)
@@ -309,8 +314,7 @@ class LocalGroundFilter:
             self.side_drift = self.side_drift + min(travel / _SIDE_MEMORY_M, 1.0) * (
                 sides - self.side_drift)
         if on_bumps.any():
-            rough = rough | samples_near(self.hinge + self.seen_from,
-                                         np.array(self.ahead.bumps.ahead))
+            rough = rough | samples_near(self.samples_from, np.array(self.ahead.bumps.ahead))
         lifted = pair.wheel_lift(fit.rotation)
         self.ahead = self.ahead.after_pair(
             fit, prior.surface, lifted=lifted > IRREGULAR_LIFT, rate_samples=self.rate_samples,
