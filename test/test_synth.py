@@ -499,6 +499,28 @@ def test_body_dives_when_braking_squats_when_accelerating_and_leans_out_of_turns
     np.testing.assert_allclose(traj.body.pitch, -math.radians(1.0) * np.tanh(traj.accel / 1.5))
 
 
+def test_the_body_turns_about_its_pivot():
+    """The camera keeps its distance to the pivot; about the rear axle on the ground a dive
+    lowers a camera ahead of it (about its centre of mass, mid-car, it hardly moves up or
+    down), and a pivot at the camera leaves it in place."""
+    mount = synth.SCENARIOS['car'].mounting
+    pitch_only = {'inertial_share': 1.0}
+    heights = {}
+    for pivot in ((0.0, 0.0), (1.35, 0.55), (mount.x, mount.height)):
+        body = synth.Suspension.degrees(1.0, 0.0, 0.0, pivot_x=pivot[0], pivot_z=pivot[1],
+                                        **pitch_only)
+        traj = sprung(suspension=body)
+        centre = np.array([pivot[0], 0.0, pivot[1]])
+        np.testing.assert_allclose(np.linalg.norm(traj.camera.position - centre, axis=1),
+                                   np.linalg.norm(mount.position - centre), atol=1e-12)
+        diving = traj.body.pitch > math.radians(0.5)
+        assert diving.sum() > 10
+        heights[pivot[0]] = traj.camera.height[diving] - mount.height
+    assert np.all(heights[0.0] < -0.01)  # 1.2 m ahead of the pivot: > 1 cm down at 0.5 deg
+    assert np.all(np.abs(heights[1.35]) < 0.003)
+    np.testing.assert_allclose(heights[mount.x], 0.0, atol=1e-12)
+
+
 def test_body_amplitudes_match_the_options_and_the_road_stays_below_3_hz():
     for pitch, roll, bounce in ((1.0, 0.6, 0.015), (2.0, 1.2, 0.03)):
         traj = sprung(suspension=synth.Suspension.degrees(pitch, roll, bounce))
@@ -575,21 +597,39 @@ def test_cli_body_options(tmp_path):
     params = tmp_path / 'p.yaml'
     rc = synth.main([str(tmp_path / 'b'), '--scenario', 'car', '--frames', '2', '--width', '160',
                      '--height', '120', '--quiet', '--params-out', str(params),
-                     '--body-pitch', '1.5', '--body-roll', '0', '--bounce', '0.01'])
+                     '--body-pitch', '1.5', '--body-roll', '0', '--bounce', '0.01',
+                     '--body-pivot', '0', '0'])
     assert rc == 0
     import yaml
     p = yaml.safe_load(params.read_text())['planar_vo']['ros__parameters']
     assert math.degrees(p['camera_roll']) == pytest.approx(0.5)
     assert math.degrees(p['camera_yaw']) == pytest.approx(-0.7)
     h = subprocess.run([SYNTH, '--help'], capture_output=True, text=True)
-    for opt in ('--body-pitch', '--body-roll', '--bounce', 'car', 'rough'):
+    for opt in ('--body-pitch', '--body-roll', '--bounce', '--body-pivot', 'car', 'rough'):
         assert opt in h.stdout
+
+
+def test_cli_body_pivot_reaches_the_renderer(tmp_path, monkeypatch):
+    seen = {}
+
+    def generate_bag(*args, suspension, **kw):
+        seen['suspension'] = suspension
+        raise ValueError('stop here')
+
+    monkeypatch.setattr('planar_vo.synth.cli.generate_bag', generate_bag)
+    assert synth.main([str(tmp_path / 'b'), '--scenario', 'car', '--quiet',
+                       '--body-pivot', '0.2', '0.1']) != 0
+    body = seen['suspension']
+    assert (body.pivot_x, body.pivot_z) == (0.2, 0.1)
+    assert math.degrees(body.pitch) == pytest.approx(1.0)  # the scenario's body, moved
 
 
 @pytest.mark.parametrize('args, message', [
     (['--body-pitch', '7'], 'at most 5 degrees'),
     (['--body-roll', '-1'], 'must be a finite number >= 0'),
     (['--bounce', '0.9'], 'at most half the camera height'),
+    (['--body-pivot', '1', '-0.2'], 'not under the ground'),
+    (['--body-pivot', '1'], 'expected 2 arguments'),
 ])
 def test_cli_body_errors_are_one_line(tmp_path, args, message, capsys):
     with pytest.raises(SystemExit) as exc:

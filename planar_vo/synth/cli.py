@@ -101,6 +101,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--bounce', type=non_negative_float, metavar='M',
                    help="sprung body: largest height change, m (default: the scenario's, 0 "
                         'except car 0.015, rough 0.03)')
+    p.add_argument('--body-pivot', type=finite_float, nargs=2, metavar=('X', 'Z'),
+                   help='sprung body: the point it pitches and rolls about, in base_link, m '
+                        '(default 1.35 0.55: its centre of mass, mid-car; 0 0 tilts the '
+                        'vehicle about its rear axle on the ground)')
     kinds = '; '.join(f'{k}: {v}' for k, v in TERRAIN_KINDS.items()).replace('%', '%%')
     p.add_argument('--terrain', choices=list(TERRAIN_KINDS), metavar='KIND',
                    help="ground height field (default: the scenario's, flat except road: "
@@ -184,6 +188,11 @@ def main(argv=None) -> int:
         math.degrees(body.pitch) if args.body_pitch is None else args.body_pitch,
         math.degrees(body.roll) if args.body_roll is None else args.body_roll,
         body.bounce if args.bounce is None else args.bounce)
+    if args.body_pivot:
+        if args.body_pivot[1] < 0:
+            parser.error('--body-pivot: Z must be >= 0 (the pivot is not under the ground)')
+        suspension = dataclasses.replace(suspension, pivot_x=args.body_pivot[0],
+                                         pivot_z=args.body_pivot[1])
     if max(suspension.pitch, suspension.roll) > math.radians(5.0):
         parser.error('--body-pitch/--body-roll must be at most 5 degrees')
     if suspension.bounce > 0.5 * mounting.height:
