@@ -102,10 +102,11 @@ class ShutterLearning:
         """Add a pair's two readings (readout s, variance) to the watch; True when found.
 
         From then on the readout is learned as with learn_rolling_shutter, from the readings
-        through the local ground so far (see ShutterWatch), and used at once: found, it is
-        surely over 8 ms, and the readings' mean is nearer than none while the learner waits
-        to know it to 1 ms (all four terrains, sprung, 30 ms: 28.3 +- 1.4 ms when found, known
-        24 pairs later; 3.10 -> 1.59 % t_rel).
+        through the local ground so far (see ShutterWatch), and used once known to 1 ms. Not
+        at once: a global shutter taken for one (a body pitching about its rear axle over all
+        four terrains: found at 18 ms, learned down to 10 ms) lost 0.40 -> 2.88 % t_rel that
+        way, while the rolling shutter it helped (all four terrains, sprung, 30 ms) gained
+        3.10 -> 1.59 %.
         """
         watch = self.watch.add(plane, surface, dt, metres)
         if watch.ruled_out():
@@ -116,8 +117,6 @@ class ShutterLearning:
             return False
         self.watch = None
         self._take(watch.surface)
-        if self.shutter.global_shutter:
-            self.shutter = ShutterModel(watch.surface.estimate().readout, self.shutter.stamp)
         return True
 
     def _on_surface(self, residuals: SurfaceResiduals) -> tuple[float, float] | None:
