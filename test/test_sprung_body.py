@@ -106,17 +106,17 @@ def _pitch_turns(pivot_x: float, seconds: float, seed: int) -> SprungBody:
 def test_a_body_pitching_about_its_rear_axle_has_its_pivot_learned():
     assert not _pitch_turns(0.0, 2.0, seed=2).pivot_learned  # too soon: the camera's x
     body = _pitch_turns(0.0, 12.0, seed=2)
-    assert body.pivot_learned and abs(body.pivot_x(1.2)) < 0.2
+    # Once learned, not held towards the camera (0.08 m with the 0.7 m prior that decides it)
+    assert body.pivot_learned and abs(body.pivot_x(1.2)) < 0.05
 
 
 def test_a_pivot_near_the_camera_is_left_at_the_camera():
     # Mid-car, 0.15 m ahead of the camera: tilting in place did as well on rendered drives.
     body = _pitch_turns(1.35, 12.0, seed=3)
     assert not body.pivot_learned and body.pivot_x(1.2) == 1.2
-    # A front-axle pivot is learned too (shrunk towards the camera by what the bounce leaves
-    # unknown of it: 2.51 m here).
+    # A front-axle pivot is learned too (2.63 m here; 2.51 held 0.7 m wide towards the camera).
     body = _pitch_turns(2.7, 12.0, seed=4)
-    assert body.pivot_learned and 2.4 < body.pivot_x(1.2) < 2.8
+    assert body.pivot_learned and 2.55 < body.pivot_x(1.2) < 2.8
 
 
 def test_a_learned_pivot_moves_the_camera_as_a_rigid_body_turning_about_it():
