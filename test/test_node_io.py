@@ -222,8 +222,9 @@ def test_set_pose_then_reset(ros, io, node_io, bag):
     expected = _compose(np.array([10.0, -3.0, 1.0]),
                         _relative(frames.truth(4), frames.truth(14)))
     got = planar_pose(odoms[-1].pose.pose)
-    # Measured: 1.2 mm, 3.6e-4 rad.
-    assert np.hypot(*(got[:2] - expected[:2])) < 0.003 and abs(got[2] - expected[2]) < 0.001
+    # The odometry's own error over these 10 frames (2.5 m): 1.2 mm and 3.6e-4 rad measured,
+    # 4.3 mm once in a full run on a loaded machine; a pose set wrong is off by metres.
+    assert np.hypot(*(got[:2] - expected[:2])) < 0.01 and abs(got[2] - expected[2]) < 0.002
     first = np.array(odoms[0].pose.covariance).reshape(6, 6)
     assert first[0, 0] >= 0.04 and first[1, 1] >= 0.09 and first[5, 5] >= 0.01
     assert ros.call(Trigger, '/io/planar_vo/reset', Trigger.Request()).success
