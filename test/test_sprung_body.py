@@ -1,6 +1,7 @@
 """The sprung body learner: a rigid mount gets no tilt, a pitching body its own, a bump none."""
 
 import numpy as np
+import pytest
 
 from planar_vo.core.odometry.sprung_body import SprungBody
 
@@ -16,10 +17,13 @@ def _learn(tilts: np.ndarray, variance: float = 0.0) -> tuple[SprungBody, list[n
     return body, applied
 
 
-def test_a_rigid_mount_read_through_noise_applies_no_tilt():
+@pytest.mark.parametrize('floor_px, variance', [(0.5, 0.0), (0.9, 2e-6)])
+def test_a_rigid_mount_read_through_noise_applies_no_tilt(floor_px, variance):
     rng = np.random.default_rng(0)
-    noise = 0.9 / FOCAL  # the road history's reading error the learner assumes
-    _, applied = _learn(rng.normal(0.0, noise, (400, 2)))
+    # The road history's reading error the learner assumes: on a flat road (its reading's
+    # variance small), then on a grade.
+    noise = np.sqrt((floor_px / FOCAL) ** 2 + variance)
+    _, applied = _learn(rng.normal(0.0, noise, (400, 2)), variance)
     # Shrunk to nearly nothing: far below the reading noise itself.
     applied = np.array(applied[100:])
     assert np.sqrt(np.mean(applied ** 2)) < 0.15 * noise
@@ -37,6 +41,21 @@ def test_a_pitching_body_gets_its_tilt_and_the_step_its_uncertainty():
     assert np.sqrt(np.mean(error ** 2)) < 1.5 * noise
     # What is left unknown of the tilt is about that noise, not the body's swing (17 mrad).
     assert np.all(np.sqrt(body.unknown_tilt_var) < 2.0 * noise)
+
+
+def test_a_slow_swing_on_a_flat_road_is_believed_more_than_on_a_grade():
+    """A car's dive and squat, 0.3 deg over seconds, read to 0.4 px as on a flat road: applied
+    at 0.9 of itself (0.78 before stop 55, held back by the floor a grade needs); the same
+    readings from a road the history reads as a grade (variance 2e-6) are held back more."""
+    t = np.arange(400) * DT
+    true = np.c_[np.radians(0.15) * np.sin(0.9 * t), np.radians(0.3) * np.sin(0.7 * t + 1.0)]
+    read = true + np.random.default_rng(3).normal(0.0, 0.4 / FOCAL, true.shape)
+    gains = []
+    for variance in (1e-7, 2e-6):
+        _, applied = _learn(read, variance)
+        applied = np.array(applied[200:])
+        gains.append(np.sum(applied[:, 1] * true[200:, 1]) / np.sum(true[200:, 1] ** 2))
+    assert gains[0] > 0.85 and gains[1] < gains[0] - 0.1, gains
 
 
 def test_a_wheel_on_a_bump_is_not_taken_for_the_body():
