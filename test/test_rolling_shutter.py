@@ -400,6 +400,37 @@ def test_a_rolling_shutter_found_is_used_once_its_readout_is_known_to_a_millisec
     assert learning.diagnostics()[0]['rolling_shutter_readout in use (ms)'] == '0.00'
 
 
+def _found_at(readout: float) -> ShutterLearning:
+    """A watch that found a rolling shutter from readings of ``readout`` (s), 2 ms each."""
+    learning = ShutterLearning(0.0, 'middle', learn=False, watch=True)
+    for _ in range(100):
+        if learning.add_watched(*[(readout, 0.002 ** 2)] * 2, 0.05, 0.35):
+            return learning
+    raise AssertionError('not found')
+
+
+def test_a_rolling_shutter_found_is_taken_back_when_the_readings_since_contradict_it():
+    """A global shutter found for a rolling one by what its first metres did (a body pitching
+    about its rear axle over all four terrains: found at 18 ms, then read 0): once the pairs
+    since read under the readout that found it by more than the 8 ms bar, surely, the global
+    shutter is back and nothing is learned. A rolling shutter read 0.9 of it stays found."""
+    learning = _found_at(0.018)
+    rng = np.random.default_rng(0)
+    for _ in range(39):
+        learning.add_reading(rng.normal(0.001, 0.002), 0.002 ** 2, 0.05)
+    assert learning.calibrator is not None and learning.found is not None  # 40 pairs first
+    learning.add_reading(0.001, 0.002 ** 2, 0.05)
+    assert learning.shutter.global_shutter and learning.shutter == learning.configured
+    assert learning.estimate() is None and not learning.wants(refined=True)
+    assert learning.diagnostics() == ({}, {})
+
+    learning = _found_at(0.030)
+    for _ in range(200):
+        learning.add_reading(rng.normal(0.027, 0.002), 0.002 ** 2, 0.05)
+    assert learning.found is not None
+    assert learning.shutter.readout == pytest.approx(0.027, abs=0.001)
+
+
 def _watch_verdicts(drive: str) -> tuple[str, int, float]:
     """ShutterWatch over a drive's recorded readings: (found / ruled out / watching, at pair,
     the lower of the two readings' lower bounds at pair 40, s)."""

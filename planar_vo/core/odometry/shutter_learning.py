@@ -21,6 +21,7 @@ from planar_vo.core.estimation.rolling_shutter import (
     ReadoutEstimate,
     ShutterModel,
     ShutterWatch,
+    contradicts,
     readout_advice,
     readout_measurement,
     readout_on_surface,
@@ -44,6 +45,9 @@ class ShutterLearning:
         self.shutter = self.configured
         self.calibrator = ReadoutCalibrator(readout) if learn else None
         self.watch = ShutterWatch() if watch and not learn and readout == 0.0 else None
+        # Once the watch found a rolling shutter: what found it, and the readings since.
+        self.found: ReadoutEstimate | None = None
+        self.since_found: ReadoutCalibrator | None = None
 
     @property
     def learning(self) -> bool:
@@ -78,13 +82,13 @@ class ShutterLearning:
         measured = readout_measurement(est.motion, p1, m2, (*rows, height, dt), self.shutter,
                                        model, est.inliers)
         if measured is not None:
-            self._add(*measured, dt)
+            self.add_reading(*measured, dt)
 
     def read_on_surface(self, residuals: SurfaceResiduals, dt: float) -> None:
         """Add this pair's readout read through the local ground (see readout_on_surface)."""
         measured = self._on_surface(residuals)
         if measured is not None:
-            self._add(*measured, dt)
+            self.add_reading(*measured, dt)
 
     def watch_pair(self, planar: RansacResult, p1: np.ndarray, m2: np.ndarray,
                    rows: tuple[np.ndarray, np.ndarray], height: int, dt: float,
@@ -116,6 +120,7 @@ class ShutterLearning:
             self.watch = watch
             return False
         self.watch = None
+        self.found, self.since_found = watch.surface.estimate(), ReadoutCalibrator(0.0)
         self._take(watch.surface)
         return True
 
@@ -125,10 +130,24 @@ class ShutterLearning:
         return readout_on_surface(lambda readout: residuals(ShutterModel(readout, stamp)),
                                   self.shutter.readout)
 
-    def _add(self, readout: float, variance: float, dt: float) -> None:
+    def add_reading(self, readout: float, variance: float, dt: float) -> None:
+        """Add a pair's reading (readout s, variance) to the learner (see ``calibrator``).
+
+        After the watch found a rolling shutter, a global shutter is taken back once the
+        readings since contradict it (see ``contradicts``).
+        """
         calibrator = copy.copy(self.calibrator)  # replaced, never changed in place
         calibrator.add(readout, variance, dt)
         self._take(calibrator)
+        if self.since_found is None:
+            return
+        since = copy.copy(self.since_found)
+        since.add(readout, variance, dt)
+        self.since_found = since
+        if contradicts(self.found, since.estimate()):
+            # Not a rolling shutter after all: the global shutter configured, not watched again.
+            self.shutter, self.calibrator = self.configured, None
+            self.found = self.since_found = None
 
     def _take(self, calibrator: ReadoutCalibrator) -> None:
         """Learn the readout with ``calibrator``; use its readout once known."""
