@@ -246,8 +246,8 @@ def _swaying_calibrator(eta: float, seconds: float):
 def test_a_body_swaying_at_the_start_is_not_taken_for_a_yawed_camera():
     """Over its first half swing the sway slips the steps one way, surely by the fit's own
     count (its steps are not independent; without the settling -0.47 deg was applied at
-    0.85 s, then -0.12, +0.12, -0.03): an exact yaw is
-    left alone. A camera yawed 1 deg off is corrected within the first second all the same."""
+    0.85 s, then -0.12, +0.12, -0.03): an exact yaw is left alone. A camera yawed 1 deg off
+    is corrected within the first second all the same."""
     calibrator, first = _swaying_calibrator(0.0, 12.0)
     assert first is None
     assert calibrator.working.yaw == MOUNTING.yaw
