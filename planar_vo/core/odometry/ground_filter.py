@@ -199,6 +199,7 @@ class LocalGroundFilter:
         self.profile = RoadProfile.empty()
         self.body = np.zeros(2)  # (roll, pitch) of the camera to its wheels, beyond the static
         self.last_fit: tuple | None = None  # what the last refinement saw, for advance()
+        self.step_var = 0.0  # m^2: the last refinement's own variance of its step along x
         self.solution: tuple | None = None  # the last pair's (params, camera, hinge, weights)
         self.wheel_lift = 0.0  # m: how far the last pair's jolt lifted a wheel off the road
         self.ahead = RoadAhead()  # bumps and raised ground, until the wheels pass them
@@ -336,6 +337,7 @@ class LocalGroundFilter:
         motion_cov[0, 0] += (lift * travel / camera.height) ** 2
         self.wheel_lift = lifted
         used = self.tilt_offset + self.body
+        self.step_var = float(fit.covariance[0, 0])
         self.last_fit = (fit.measured_rotation, fit.surface, fit.surface_cov, used, dt,
                          model.focal_px, camera.position)
         self.solution = (np.concatenate([fit.motion, fit.rotation, fit.surface]), camera, hinge,

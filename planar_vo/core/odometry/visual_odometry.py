@@ -10,6 +10,7 @@ No ROS imports: the node and the replay CLI are thin adapters around :class:`Vis
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import time
 from collections.abc import Mapping
@@ -46,6 +47,7 @@ from planar_vo.core.odometry.ground_filter import LocalGroundFilter
 from planar_vo.core.odometry.pose_integrator import PoseIntegrator
 from planar_vo.core.odometry.result import FrameResult, FrameStatus
 from planar_vo.core.odometry.shutter_learning import ShutterLearning, SurfaceResiduals
+from planar_vo.core.odometry.speed_prior import SpeedPrior
 from planar_vo.core.odometry.standstill import HeldReference, Standstill
 
 __all__ = ['VisualOdometry']
@@ -176,6 +178,7 @@ class VisualOdometry:
         self.integrator.reset()
         self.standstill.reset()
         self._ref_stamp: float | None = None
+        self.speed_prior = SpeedPrior()
         self.gate.last_stamp = None
         self._failed_frames = 0
         if self.attitude_filter is not None:
@@ -493,6 +496,9 @@ class VisualOdometry:
                 reference_image, self.tracker.reference[kept].copy(),
                 self.tracker.reference_normalized[kept].copy(), previous), stamp)
             return self._hold_still(stamp, t0, previous, est, stats)
+        if self.ground is not None and step is est.motion:  # not pulling away from a stop
+            est = self._held_to_speed(est, start, stamp)
+            step = est.motion
         self._read_shutter(planar, est.motion, p1_ok, m2_ok, pair)
         self.integrator.add(start, stamp - start, step, est.covariance)
         if self.ground is not None:
@@ -507,6 +513,16 @@ class VisualOdometry:
             inliers=int(np.count_nonzero(est.inliers)), hypotheses=est.hypotheses,
             rms_px=est.rms_px, pose_ms=pose_ms,
             inlier_points=used[est.inliers], outlier_points=used[~est.inliers])
+
+    def _held_to_speed(self, est: RansacResult, start: float, stamp: float) -> RansacResult:
+        """``est`` with its step along x weighed against the speed's (SpeedPrior).
+
+        After a stop or a restart the last step does not end at ``start``: nothing is
+        predicted then.
+        """
+        self.speed_prior, along = self.speed_prior.fuse(start, stamp, float(est.motion[0]),
+                                                        self.ground.step_var)
+        return dataclasses.replace(est, motion=np.r_[along, est.motion[1:]])
 
     def _refine_on_ground(self, est: RansacResult, rays1: np.ndarray, m2: np.ndarray,
                           model: TransferModel, stamp: float,
