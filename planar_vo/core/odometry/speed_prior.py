@@ -18,13 +18,14 @@ __all__ = ['SpeedPrior']
 
 # How far the acceleration may change unpredicted over a pair, m/s^2 (one sigma): a car's
 # jerk is a few m/s^3. The rendered drives change it by up to 3 m/s^2 over 2-3 s. Six
-# rendered drives at 8-14 m/s summed 1.239 -> 0.920 % t_rel at 2 (3: 0.92, 5: 0.99); at
-# 3-8 m/s, 80 drives 18.690 -> 18.669 (unchanged, within +-0.02 each but five).
+# rendered drives at 8-14 m/s summed 1.239 -> 0.916 % t_rel at 2 (3: 0.884, 5: 0.980; 2 was
+# chosen on four more at 3-8 m/s, rigid ones among them); at 3-8 m/s, 80 drives 18.690 ->
+# 18.603 (within +-0.02 each but six).
 _ACCEL_CHANGE = 2.0
 # The fit's own step variance is taken _FIT_SPREAD times larger, and at least _STEP_FLOOR_M:
 # on rendered rigid drives a pair's error is 1.7 times the fit's sigma (0.2 mm), on sprung
 # bodies 10-14 times (2 mm: the body's bounce changes the scale), on the poorly held pairs at
-# speed 7-12 times (9-11 mm of sigma for +73 to +130 mm).
+# speed 7-16 times (4.5-11 mm of sigma for +73 to +130 mm).
 _FIT_SPREAD = 3.0
 _STEP_FLOOR_M = 0.001
 # s: the acceleration followed over this long (the speed's change between pairs, averaged).
