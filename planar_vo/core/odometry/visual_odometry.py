@@ -496,7 +496,8 @@ class VisualOdometry:
                 reference_image, self.tracker.reference[kept].copy(),
                 self.tracker.reference_normalized[kept].copy(), previous), stamp)
             return self._hold_still(stamp, t0, previous, est, stats)
-        if self.ground is not None and step is est.motion:  # not pulling away from a stop
+        if est is not planar and self.ground is not None and step is est.motion:
+            # Refined over the local ground (its fit's variance known), not pulling away.
             est = self._held_to_speed(est, start, stamp)
             step = est.motion
         self._read_shutter(planar, est.motion, p1_ok, m2_ok, pair)
