@@ -471,7 +471,7 @@ class VisualOdometry:
         self._failed_frames = 0
         stats = dict(correspondences=n, inliers=int(np.count_nonzero(est.inliers)),
                      hypotheses=est.hypotheses, rms_px=est.rms_px, pose_ms=pose_ms)
-        start, step = self._ref_stamp, est.motion
+        start, step, pulling_away = self._ref_stamp, est.motion, False
         if self.standstill.stationary:
             # Moving again when the rigid planar motion since the reference says so, or the
             # local ground's: on uneven ground a car stopping on a bump's slope fits no rigid
@@ -486,7 +486,7 @@ class VisualOdometry:
             self.standstill.reset()
             if previous > held.stamp:
                 self.integrator.add(held.stamp, previous - held.stamp, still, still_cov)
-            start, step = previous, relative_motion(still, est.motion)
+            start, step, pulling_away = previous, relative_motion(still, est.motion), True
         elif (reference_image is not None and self._ref_stamp == previous
               and self.standstill.quiet(planar.motion, planar.covariance,
                                         None if est is planar else est.motion)):
@@ -496,8 +496,8 @@ class VisualOdometry:
                 reference_image, self.tracker.reference[kept].copy(),
                 self.tracker.reference_normalized[kept].copy(), previous), stamp)
             return self._hold_still(stamp, t0, previous, est, stats)
-        if est is not planar and self.ground is not None and step is est.motion:
-            # Refined over the local ground (its fit's variance known), not pulling away.
+        if est is not planar and self.ground is not None and not pulling_away:
+            # Refined over the local ground: its fit's variance is known.
             est = self._held_to_speed(est, start, stamp)
             step = est.motion
         self._read_shutter(planar, est.motion, p1_ok, m2_ok, pair)
