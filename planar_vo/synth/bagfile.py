@@ -137,12 +137,13 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                  exposure: float = 0.0, supersample: int = 1,
                  terrain: str | Terrain | None = None, vehicle: str = 'car',
                  rolling_shutter: RollingShutter | None = None,
-                 terrain_shape: TerrainShape | None = None,
-                 progress: bool = False) -> SynthResult:
+                 terrain_shape: TerrainShape | None = None, texture_contrast: float = 1.0,
+                 vignetting: float = 0.35, progress: bool = False) -> SynthResult:
     """Render a scenario and write the rosbag2 bag (MCAP, zstd chunks) at ``out_path``.
 
-    ``mounting``, ``suspension``, ``exposure``, ``supersample``, ``terrain``, ``terrain_shape``
-    and ``vehicle`` as in :func:`render_scenario`. The images are rendered with ``mounting``;
+    ``mounting``, ``suspension``, ``exposure``, ``supersample``, ``terrain``, ``terrain_shape``,
+    ``texture_contrast``, ``vignetting`` and ``vehicle`` as in :func:`render_scenario`. The
+    images are rendered with ``mounting``;
     ``params_out`` gets it plus ``configured_error`` (the mounting a user would have
     configured, to test calibration). On terrain (not flat) the bag also has
     ``/ground_truth/pose3d`` and its metadata.yaml records the terrain and the vehicle
@@ -161,7 +162,8 @@ def generate_bag(out_path, scenario: str = 'default', frames: int = 300, seed: i
                                      obstacles=obstacles, exposure=exposure,
                                      supersample=supersample, terrain=terrain,
                                      vehicle=vehicle, rolling_shutter=rolling_shutter,
-                                     terrain_shape=terrain_shape)
+                                     terrain_shape=terrain_shape,
+                                     texture_contrast=texture_contrast, vignetting=vignetting)
     ground = renderer.terrain
     shutter = None if rolling_shutter is None or rolling_shutter.global_shutter \
         else rolling_shutter

@@ -130,6 +130,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--exposure', type=non_negative_float, default=0.0, metavar='FRACTION',
                    help='auto-exposure gain changes within +-FRACTION (e.g. 0.2): half a '
                         'smooth drift, half steps every 1.5-4 s (default 0: off)')
+    p.add_argument('--texture-contrast', type=positive_float, default=1.0, metavar='F',
+                   help="the road's contrast: every grey level's distance from 120 times F "
+                        '(default 1; 0.3: a worn, even road)')
+    p.add_argument('--vignetting', type=non_negative_float, default=0.35, metavar='F',
+                   help='light lost towards the edges of the image: 1 - F (u^2 + v^2), u and '
+                        'v from -0.5 to 0.5 across it (default 0.35: 17.5 %% in the corners; '
+                        '0: none)')
     p.add_argument('--noise', type=non_negative_float, default=1.5,
                    help='Gaussian image noise sigma, grey levels (default 1.5)')
     p.add_argument('--supersample', type=positive_int, default=1, metavar='S',
@@ -199,6 +206,10 @@ def main(argv=None) -> int:
         parser.error('--bounce must be at most half the camera height')
     if args.exposure > 0.5:
         parser.error('--exposure must be at most 0.5 (a gain within +-50 %)')
+    if args.vignetting > 1.0:
+        parser.error('--vignetting must be at most 1 (half the light lost in the corners)')
+    if args.texture_contrast > 3.0:
+        parser.error('--texture-contrast must be at most 3 (beyond it the road is clipped)')
     if args.rolling_shutter > 0.2:
         parser.error('--rolling-shutter must be at most 0.2 s')
     if args.configured_error and not args.params_out:
@@ -228,6 +239,7 @@ def main(argv=None) -> int:
                            exposure=args.exposure, supersample=args.supersample,
                            terrain=args.terrain, vehicle=args.vehicle,
                            terrain_shape=args.terrain_shape,
+                           texture_contrast=args.texture_contrast, vignetting=args.vignetting,
                            rolling_shutter=RollingShutter(args.rolling_shutter,
                                                           args.rolling_shutter_stamp),
                            progress=not args.quiet)

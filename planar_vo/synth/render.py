@@ -78,7 +78,7 @@ class Renderer:
                  haze: bool = True, max_tilt: float = math.radians(4.0),
                  exposure: np.ndarray | None = None, supersample: int = 1,
                  terrain: Terrain | None = None, traffic=(),
-                 frame_times: np.ndarray | None = None) -> None:
+                 frame_times: np.ndarray | None = None, vignetting: float = 0.35) -> None:
         self.terrain = FLAT if terrain is None else terrain
         if int(supersample) != supersample or supersample < 1:
             raise ValueError(f'supersample must be a whole number >= 1, got {supersample}')
@@ -136,7 +136,7 @@ class Renderer:
         sensor = self.camera
         uu, vv = np.meshgrid((np.arange(sensor.width) - sensor.cx) / sensor.width,
                              (np.arange(sensor.height) - sensor.cy) / sensor.height)
-        self.vignette = (1.0 - 0.35 * (uu * uu + vv * vv)).ravel().astype(np.float32)
+        self.vignette = (1.0 - vignetting * (uu * uu + vv * vv)).ravel().astype(np.float32)
         # A pixel is ground when all its rays are.
         self.ground_mask = ground.reshape(sensor.height, self.supersample, sensor.width,
                                           self.supersample).all(axis=(1, 3))

@@ -150,7 +150,8 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
                     max_range: float = 60.0, obstacles: bool = True, exposure: float = 0.0,
                     supersample: int = 1, terrain: str | Terrain | None = None,
                     vehicle: str = 'car', rolling_shutter: RollingShutter | None = None,
-                    terrain_shape: TerrainShape | None = None):
+                    terrain_shape: TerrainShape | None = None, texture_contrast: float = 1.0,
+                    vignetting: float = 0.35):
     """Build the scene; return ``(renderer, trajectory)``.
 
     ``terrain``: a key of :data:`TERRAIN_KINDS` or a :class:`Terrain` (default: the
@@ -164,6 +165,8 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
     default to the scenario's. ``exposure`` is the auto-exposure range (0.2: gain within
     +-20 %, see :func:`exposure_gains`; ``renderer.exposure`` holds the gain of every frame).
     ``supersample``: rays per pixel side, averaged (see :class:`Renderer`).
+    ``texture_contrast``: the road's contrast (see :func:`make_ground_texture`);
+    ``vignetting``: the light lost towards the image's edges (corners: half of it).
     ``renderer.render_frame(traj, k)`` is frame k of the bag; ``traj.camera`` holds the true
     camera pose of every frame.
 
@@ -195,7 +198,8 @@ def render_scenario(scenario: str = 'default', frames: int = 300, seed: int = 0,
     boxes = make_obstacles(with_world_path(traj), sc.obstacles, seed, mounting) \
         if obstacles else []
     traffic = make_traffic(traj, sc.traffic, seed, mounting.x) if obstacles else []
-    renderer = Renderer(camera, mounting, make_ground_texture(seed), boxes,
+    renderer = Renderer(camera, mounting, make_ground_texture(seed, contrast=texture_contrast),
+                        boxes, vignetting=vignetting,
                         max_range=max_range, noise_sigma=noise_sigma, seed=seed,
                         max_tilt=suspension.pitch + suspension.roll + math.radians(1.0),
                         exposure=exposure_gains(traj.t, exposure, seed) if exposure else None,

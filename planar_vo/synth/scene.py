@@ -113,8 +113,12 @@ def _blur_wrap(img: np.ndarray, sigma: float) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=5)  # ~64 MB each: the tests' five seeds built once
-def make_ground_texture(seed: int = 0, size: int = 4096, texel: float = 0.005) -> Texture:
-    """Asphalt-like periodic texture: pink noise + speckle + stones + stains + lane dashes."""
+def make_ground_texture(seed: int = 0, size: int = 4096, texel: float = 0.005,
+                        contrast: float = 1.0) -> Texture:
+    """Asphalt-like periodic texture: pink noise + speckle + stones + stains + lane dashes.
+
+    ``contrast`` scales every grey level's distance from 120 (a worn, even road: 0.3).
+    """
     rng = np.random.default_rng([seed, 2])
     fy = np.fft.fftfreq(size)[:, None]
     fx = np.fft.rfftfreq(size)[None, :]
@@ -152,6 +156,8 @@ def make_ground_texture(seed: int = 0, size: int = 4096, texel: float = 0.005) -
             img[row0:row0 + lane_w, start:start + dash] = (
                 0.3 * img[row0:row0 + lane_w, start:start + dash] + 150.0 * wear)
     img = np.clip(img, 5.0, 250.0)
+    if contrast != 1.0:
+        img = 120.0 + contrast * (img - 120.0)
     return Texture(img, texel)
 
 
