@@ -280,6 +280,10 @@ class Tracker:
         self.points_normalized = self.reference_normalized = np.asarray(normalized)
         self._image = image
 
+    def replace_image(self, image: np.ndarray) -> None:
+        """The last image, the same frame corrected otherwise (tracks stay where they are)."""
+        self._image = image
+
     def drop(self, indices: np.ndarray) -> None:
         """Remove tracks (e.g. outliers: obstacles, mismatches) so the grid refills."""
         keep = np.ones(len(self.points), bool)

@@ -37,6 +37,7 @@ from planar_vo.core.estimation.rolling_shutter import (
 )
 from planar_vo.core.frontend.ground_frontend import GroundFrontEnd
 from planar_vo.core.frontend.tracker import Tracker
+from planar_vo.core.frontend.vignetting import LEARNED_AFTER_M, Vignetting
 from planar_vo.core.geometry.camera import CameraModel, Mounting, bin_image, rays_through
 from planar_vo.core.geometry.se2 import compose, inverse_motion, step_length, twist_motion
 from planar_vo.core.odometry.advice import calibration_report, ground_advice
@@ -85,6 +86,7 @@ class VisualOdometry:
         self_calibrate: bool = True,
         klt_prewarp: bool = True,
         klt_first_search: bool = True,
+        learn_vignetting: bool = True,
         rolling_shutter_readout: float = 0.0,
         rolling_shutter_stamp: str = 'middle',
         learn_rolling_shutter: bool = False,
@@ -104,6 +106,8 @@ class VisualOdometry:
         self.gate = FrameGate(max_frame_gap)
         self.integrator = PoseIntegrator()
         self.standstill = Standstill()
+        self.learn_vignetting = learn_vignetting
+        self.vignetting = Vignetting()  # the lens's: kept over restarts
         self.attitude_filter = (None if attitude is None else
                                 AttitudeFilter(attitude, mounting, self_calibrate=self_calibrate))
         self.ground = ground  # None: the ground is one plane under the wheels (the paper's)
@@ -141,6 +145,7 @@ class VisualOdometry:
                 params['ground_model'] == 'local') else None,
             self_calibrate=params['self_calibrate'], klt_prewarp=params['klt_prewarp'],
             klt_first_search=params['klt_first_search'],
+            learn_vignetting=params['learn_vignetting'],
             rolling_shutter_readout=params['rolling_shutter_readout'],
             rolling_shutter_stamp=params['rolling_shutter_stamp'],
             learn_rolling_shutter=params['learn_rolling_shutter'],
@@ -293,7 +298,16 @@ class VisualOdometry:
             'camera': (f'{self.camera.width}x{self.camera.height}, fx {self.camera.K[0, 0]:.1f}, '
                        f'{self.camera.distortion_model}'),
             'shutter': self.shutter.describe(),
+            'vignetting': self._vignetting_report(),
         }
+
+    def _vignetting_report(self) -> str:
+        if not self.learn_vignetting:
+            return 'not learned (learn_vignetting off)'
+        if self.vignetting.gain is None:
+            return f'learning ({self.vignetting.travel:.1f} of {LEARNED_AFTER_M:.0f} m driven)'
+        return (f'divided out: the darkest ground {100 * self.vignetting.falloff:.0f} % '
+                'under the brightest')
 
     def _update_geometry(self, camera: CameraModel, mounting: Mounting, *,
                          check_round_trip: bool = False) -> None:
@@ -348,6 +362,9 @@ class VisualOdometry:
                                   check_round_trip=True)
         refusal = self.gate.check(gray, stamp, (self.camera.width, self.camera.height),
                                   self.tracker.image_shape)
+        raw = gray
+        if self.learn_vignetting:
+            gray = self.vignetting.corrected(raw)
         if refusal is not None:
             if refusal.counter:
                 self.counters[refusal.counter] += 1
@@ -376,7 +393,21 @@ class VisualOdometry:
                              last_is_reference=self._ref_stamp == previous,
                              shutter=self.shutter, dt=dt)
         t_track = time.perf_counter()
+        before = self.integrator.pose.copy()
         result = self._estimate(stamp, t0, previous, reference_image, mounting, model)
+        if self.learn_vignetting:
+            # The road moves through the image by the travel and, turning, by the camera's
+            # height per radian.
+            moved = self.integrator.pose - before
+            learned = self.vignetting.with_frame(
+                raw, math.hypot(moved[0], moved[1])
+                + abs(math.remainder(moved[2], math.tau)) * mounting.position[2],
+                self.front.mask)
+            if learned.gain is not self.vignetting.gain:
+                # The next image is matched against this one as corrected the same way: a
+                # change of the correction between them would stay put in the image.
+                self.tracker.replace_image(learned.corrected(raw))
+            self.vignetting = learned
         result.timing_ms['track'] = 1e3 * (t_track - t0)
         if self.standstill.stationary:  # the held tracks are the reference: nothing to add
             result.tracks = len(self.tracker)
