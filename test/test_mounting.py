@@ -93,7 +93,7 @@ def test_the_shipped_defaults_hold_a_sprung_car_with_the_nominal_mounting(sprung
 
 
 def test_sprung_body_stays_near_a_rigid_mount_and_beats_opencv(sprung_car,
-                                                                  sprung_car_as_advised):
+                                                               sprung_car_as_advised):
     """The sprung `car` drive configured as the README advises (attitude, pivot, 700 tracks)
     against the rigid model on a rigid mount along the same path, and OpenCV's homography on
     the same tracks. Measured (200 frames, 31 m): rigid mount 0.034 %, sprung 0.047 % (1.4x;
