@@ -95,6 +95,20 @@ def test_nothing_is_learned_standing_still_or_before_the_road_has_moved_enough()
     assert early.gain is None and early.corrected(image) is image
 
 
+def test_beyond_the_ground_the_gain_is_held_at_the_ground_s_edge():
+    # A shading that bends over the ground's rows: the degree-4 polynomial fits it there, and
+    # extrapolated above the ground it darkened the image 8x (gain 0.11). KLT's windows on
+    # the coarser pyramid levels reach there.
+    v = np.arange(H)[:, None] / H * np.ones((1, W))
+    shade = np.exp(0.15 * np.cos(3 * np.pi * v))
+    image = np.clip(128 * _vignette() * shade + 0.5, 0, 255).astype(np.uint8)
+    learned = _learned([image] * 60)  # 15 m: a stationary pattern is learned whole
+    top = int(0.45 * H)
+    ground, above = learned.gain[top:], learned.gain[:top]
+    assert ground.max() / ground.min() > 1.5  # the shading was learned over the ground
+    assert ground.min() <= above.min() and above.max() <= ground.max()
+
+
 def test_the_exposure_changing_does_not_change_the_vignette():
     vignette = _vignette()
     steady = _learned(_frames(80, vignette))

@@ -102,11 +102,15 @@ class Vignetting:
         design = _monomials(_centred(cols, bw), _centred(rows, bh))
         coef = np.linalg.lstsq(design, np.log(self.mean[rows, cols]), rcond=None)[0]
         fitted = design @ coef
-        # Evaluated on the blocks' centres and interpolated: the polynomial is smooth.
+        # Evaluated on the blocks' centres and interpolated: the polynomial is smooth. Beyond
+        # the fitted blocks' rows and columns it is held at their edge: a polynomial runs off
+        # outside its data (gains of 0.06-9 above a rendered road), and KLT's windows on the
+        # coarser pyramid levels reach there.
         table = np.zeros((_DEGREE + 1, _DEGREE + 1))  # [j, i]: the coefficient of u^i v^j
         table[_POWERS[:, 1], _POWERS[:, 0]] = coef
-        grid = (_powers(_centred(np.arange(bh), bh)) @ table
-                @ _powers(_centred(np.arange(bw), bw)).T)
+        held_rows = np.clip(np.arange(bh), rows.min(), rows.max())
+        held_cols = np.clip(np.arange(bw), cols.min(), cols.max())
+        grid = _powers(_centred(held_rows, bh)) @ table @ _powers(_centred(held_cols, bw)).T
         gain = cv2.resize(np.exp(float(np.mean(fitted)) - grid).astype(np.float32), (w, h),
                           interpolation=cv2.INTER_LINEAR)
         return dataclasses.replace(self, gain=gain, fitted_at=self.travel,
