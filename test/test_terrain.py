@@ -417,7 +417,7 @@ def test_long_low_bumps_hold_with_the_shipped_defaults():
 def test_the_front_wheels_climb_of_a_bump_seen_ahead_is_read_as_it_happens():
     """On a short bumps drive (the issue's 752x480), while the renderer's front axle is on a
     bump the camera saw ahead, the front wheels' height comes out near the bump's 8 cm
-    (measured: 58 and 69 mm on the two bumps climbed after the first 1.5 s). A bump is placed
+    (measured: 57 and 69 mm on the two bumps climbed after the first 1.5 s). A bump is placed
     at its band's centre, past the bump: with the wheels on it only while it read up to 0.6 m
     ahead of the axle (before stop 37) the climb was missed (0 mm). At 376x240 the bump's band
     is found or missed as the image pipeline changes (stop 59): one bump decided the test."""
