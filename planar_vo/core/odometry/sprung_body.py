@@ -48,12 +48,13 @@ _TILT_WARMUP = 20  # tilts learned before the gate applies
 # 0.79 of the bounce over the height. The lift is integrated from each pair's height change
 # over _LIFT_MEMORY_S; its spread on rigid mounts was 1-2.2 mm, under _LIFT_FLOOR.
 _PIVOT_SPREAD = 0.58
-# A roll is read from the road's history less well than a pitch (0.002 rad of noise at 460
-# px; the rendered `car` rolls 0.004 RMS), and shrunk to none under the noise: the rate learned
-# from the rolls applied was 0.003-0.007 rad/s where the body rolled 0.013 RMS (pitch: 0.019
-# learned, 0.024 true), and the sideways twist error (0.55 m per rad of roll, up to 0.017 m/s)
-# ran 6 sigma past what the covariance allowed. The roll is taken to turn as fast as the
-# pitch where its own rate is less (both rendered bodies: roll 0.56x the pitch's rate).
+# A roll is read from the road's history less well than a pitch (0.9 px of noise over a 460 px
+# focal length, 0.002 rad; the rendered `car` rolls 0.004 RMS), and shrunk to none under the
+# noise: the rate learned from the rolls applied was 0.003-0.007 rad/s where the body rolled
+# 0.013 RMS (pitch: 0.019 learned, 0.024 true), and the sideways twist error (0.55 m per rad
+# of roll, up to 0.017 m/s) ran 6 sigma past what the covariance allowed. The roll is taken to
+# turn as fast as the pitch where its own rate is less (both rendered bodies: roll 0.56x the
+# pitch's rate).
 _LIFT_MEMORY_S = 3.0
 _LIFT_FLOOR = 0.003  # m
 # Before they are learned: a body turning 0.05 rad/s (until the road's history first reads
