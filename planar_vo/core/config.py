@@ -122,9 +122,11 @@ SCHEMA: tuple[Param, ...] = (
           'images through the ground and track from it, warped: at 10-15 Hz and 7.5 m/s KLT '
           'alone keeps a few tracks of that pair (20-70 ms, once).'),
     Param('learn_vignetting', True, "Learn the lens's vignetting from the drive (the ground's "
-          'mean look over the last 20 m) and divide it out before KLT, once 10 m are driven: '
-          'the darker corners otherwise hold the tracks back (a rendered road of a third of '
-          'the usual contrast, 17 % less light in the corners: 0.34 % t_rel, 0.08 with it). '
+          'mean look over the last 20 m) and divide it out before KLT: its part symmetric about '
+          "the image's centre once 3 m are driven, the whole once 10 m are (the road's stains "
+          'averaged out). The darker corners otherwise hold the tracks back (a rendered road '
+          'of a third of the usual contrast, 17 % less light in the corners: 0.34 % t_rel, '
+          '0.05 with it). '
           'Off for images already flat-fielded, if you like: it learns a flat field there.'),
     Param('horizon_margin', math.radians(12.0),
           'Use only rays at least this far below the horizon, rad: points just below it are '

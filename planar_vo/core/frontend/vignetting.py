@@ -12,8 +12,10 @@ block-averaged frames (the road's texture averages out as it moves past), to whi
 polynomial in the image coordinates (total degree 4) is fitted in log brightness over the
 ground's blocks; its constant (the light, the exposure) is left out. Anything else that
 stays put in the image and multiplies the light (lens shading, a dirty window's haze) is
-taken out with it. Used once the vehicle has driven 10 m, far enough for the road's own
-stains not to be learned as vignetting. Numpy and OpenCV only; no ROS.
+taken out with it. The road's own stains must not be learned as vignetting: from 3 m driven
+only the polynomial's terms symmetric about the image's centre are fitted (a lens's falloff
+is; a stain is not), the whole polynomial once 10 m have averaged the stains out. Numpy and
+OpenCV only; no ROS.
 """
 
 from __future__ import annotations
@@ -24,18 +26,19 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ['LEARNED_AFTER_M', 'Vignetting']
+__all__ = ['SYMMETRIC_AFTER_M', 'Vignetting']
 
 _BLOCK = 8  # px: frames are averaged over blocks this size before they are remembered
 _DEGREE = 4  # the polynomial's total degree in the image coordinates
-# m of travel the mean remembers (an exponential memory), and the travel after which it is
-# used: the road's stains (tens of grey levels, metres wide) average out only over a few
-# lengths of the view (a car's: 1.5-5 m ahead). Used from 3 m the stains left in it made the
-# plane model's attitude read tilts (bags/default with `estimate_attitude` 0.038 -> 0.060 %
-# t_rel; fitted once at 3 m and kept: 0.36); from 10 m 0.039, and 24 rendered drives at
-# 752x480 summed 2.829 % before, 2.716 from 3 m, 2.550 from 10 m.
+# m of travel the mean remembers (an exponential memory), and the travel after which its
+# symmetric part, then the whole polynomial, is used: the road's stains (tens of grey levels,
+# metres wide) average out only over a few lengths of the view (a car's: 1.5-5 m ahead). The
+# whole polynomial used from 3 m took the stains left for a tilt (bags/default with
+# `estimate_attitude` 0.038 -> 0.060 % t_rel), from 10 m 0.039; its symmetric part from 3 m
+# then the whole from 10 m 0.042, with the shipped defaults 0.024 -> 0.016 (docs/accuracy.md).
 _MEMORY_M = 20.0
-LEARNED_AFTER_M = 10.0
+SYMMETRIC_AFTER_M = 3.0
+_WHOLE_AFTER_M = 10.0
 _REFIT_TRAVEL_M = 0.5  # m: the polynomial is fitted again after this much more travel (1.5 ms)
 _DARK, _BRIGHT = 8.0, 247.0  # blocks whose mean is outside these (clipped) are not fitted
 
@@ -83,12 +86,15 @@ class Vignetting:
         else:
             mean = self.mean + min(travel / min(total, _MEMORY_M), 1.0) * (blocks - self.mean)
         learned = dataclasses.replace(self, mean=mean, travel=total)
-        due = total >= LEARNED_AFTER_M and (self.gain is None
+        due = total >= SYMMETRIC_AFTER_M and (self.gain is None
                                              or total - self.fitted_at >= _REFIT_TRAVEL_M)
         return learned._fitted(ground) if due else learned
 
     def _fitted(self, ground: np.ndarray) -> Vignetting:
-        """Self with the polynomial fitted again over the mean's ground blocks."""
+        """Self with the polynomial fitted again over the mean's ground blocks.
+
+        Its part symmetric about the image's centre only, before _WHOLE_AFTER_M.
+        """
         h, w = self.shape
         bh, bw = self.mean.shape
         inside = cv2.resize((ground > 0).astype(np.uint8), (bw, bh),
@@ -99,17 +105,21 @@ class Vignetting:
         if np.count_nonzero(inside) < 4 * _TERMS:
             return self
         rows, cols = np.nonzero(inside)
-        design = _monomials(_centred(cols, bw), _centred(rows, bh))
+        symmetric = self.travel < _WHOLE_AFTER_M
+        powers = _POWERS[_SYMMETRIC] if symmetric else _POWERS
+        design = _monomials(_centred(cols, bw), _centred(rows, bh), powers)
         coef = np.linalg.lstsq(design, np.log(self.mean[rows, cols]), rcond=None)[0]
         fitted = design @ coef
         # Evaluated on the blocks' centres and interpolated: the polynomial is smooth. Beyond
-        # the fitted blocks' rows and columns it is held at their edge: a polynomial runs off
-        # outside its data (gains of 0.06-9 above a rendered road), and KLT's windows on the
-        # coarser pyramid levels reach there.
+        # the fitted blocks' rows and columns the whole polynomial is held at their edge: it
+        # runs off outside its data (gains of 0.06-9 above a rendered road), and KLT's windows
+        # on the coarser pyramid levels reach there. The symmetric part mirrors what it fitted.
         table = np.zeros((_DEGREE + 1, _DEGREE + 1))  # [j, i]: the coefficient of u^i v^j
-        table[_POWERS[:, 1], _POWERS[:, 0]] = coef
-        held_rows = np.clip(np.arange(bh), rows.min(), rows.max())
-        held_cols = np.clip(np.arange(bw), cols.min(), cols.max())
+        table[powers[:, 1], powers[:, 0]] = coef
+        held_rows, held_cols = np.arange(bh), np.arange(bw)
+        if not symmetric:
+            held_rows = np.clip(held_rows, rows.min(), rows.max())
+            held_cols = np.clip(held_cols, cols.min(), cols.max())
         grid = _powers(_centred(held_rows, bh)) @ table @ _powers(_centred(held_cols, bw)).T
         gain = cv2.resize(np.exp(float(np.mean(fitted)) - grid).astype(np.float32), (w, h),
                           interpolation=cv2.INTER_LINEAR)
@@ -119,6 +129,7 @@ class Vignetting:
 
 _POWERS = np.array([(i, j) for i in range(_DEGREE + 1) for j in range(_DEGREE + 1 - i)])
 _TERMS = len(_POWERS)
+_SYMMETRIC = np.all(_POWERS % 2 == 0, axis=1)  # even in u and v: mirrored about the centre
 
 
 def _centred(index: np.ndarray, blocks: int) -> np.ndarray:
@@ -131,6 +142,6 @@ def _powers(x: np.ndarray) -> np.ndarray:
     return np.cumprod(np.column_stack([np.ones_like(x)] + [x] * _DEGREE), axis=1)
 
 
-def _monomials(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(N, _TERMS) u^i v^j for (i, j) in _POWERS."""
-    return _powers(u)[:, _POWERS[:, 0]] * _powers(v)[:, _POWERS[:, 1]]
+def _monomials(u: np.ndarray, v: np.ndarray, powers: np.ndarray) -> np.ndarray:
+    """(N, len(powers)) u^i v^j for (i, j) in ``powers``."""
+    return _powers(u)[:, powers[:, 0]] * _powers(v)[:, powers[:, 1]]

@@ -37,7 +37,7 @@ from planar_vo.core.estimation.rolling_shutter import (
 )
 from planar_vo.core.frontend.ground_frontend import GroundFrontEnd
 from planar_vo.core.frontend.tracker import Tracker
-from planar_vo.core.frontend.vignetting import LEARNED_AFTER_M, Vignetting
+from planar_vo.core.frontend.vignetting import SYMMETRIC_AFTER_M, Vignetting
 from planar_vo.core.geometry.camera import CameraModel, Mounting, bin_image, rays_through
 from planar_vo.core.geometry.se2 import compose, inverse_motion, step_length, twist_motion
 from planar_vo.core.odometry.advice import calibration_report, ground_advice
@@ -305,7 +305,7 @@ class VisualOdometry:
         if not self.learn_vignetting:
             return 'not learned (learn_vignetting off)'
         if self.vignetting.gain is None:
-            return f'learning ({self.vignetting.travel:.1f} of {LEARNED_AFTER_M:.0f} m driven)'
+            return f'learning ({self.vignetting.travel:.1f} of {SYMMETRIC_AFTER_M:.0f} m driven)'
         return (f'divided out: the darkest ground {100 * self.vignetting.falloff:.0f} % '
                 'under the brightest')
 
