@@ -39,12 +39,17 @@ class PoseIntegrator:
         """True when the last twist was measured (it can predict the next motion)."""
         return bool(np.any(self.twist)) and self.twist_covariance[0, 0] < LOST_TWIST_VARIANCE
 
-    def add(self, start: float, dt: float, motion: np.ndarray, motion_cov: np.ndarray) -> None:
-        """Compose the motion measured from ``start`` over ``dt`` s; the twist at its end."""
+    def add(self, start: float, dt: float, motion: np.ndarray, motion_cov: np.ndarray, *,
+            jolt: bool = False) -> None:
+        """Compose the motion measured from ``start`` over ``dt`` s; the twist at its end.
+
+        ``jolt``: the body's motion jumped within the interval (TwistAtStamp.add).
+        """
         self.pose, self.pose_covariance = compose(
             self.pose, self.pose_covariance, motion,
             shared_error_covariance(motion, motion_cov, dt))
-        self.twist_at_stamp = self.twist_at_stamp.add(start, start + dt, motion, motion_cov)
+        self.twist_at_stamp = self.twist_at_stamp.add(start, start + dt, motion, motion_cov,
+                                                      jolt=jolt)
         self.twist, self.twist_covariance = self.twist_at_stamp.estimate()
 
     def hold(self, start: float, end: float, motion_cov: np.ndarray,

@@ -532,7 +532,8 @@ class VisualOdometry:
             est = self._held_to_speed(est, start, stamp)
             step = est.motion
         self._read_shutter(planar, est.motion, p1_ok, m2_ok, pair)
-        self.integrator.add(start, stamp - start, step, est.covariance)
+        self.integrator.add(start, stamp - start, step, est.covariance,
+                            jolt=est is not planar and self.ground_irregular)
         if self.ground is not None:
             self.ground.advance(est.motion)
         self._ref_stamp = stamp
