@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from planar_vo.core.geometry.camera import Mounting
 from planar_vo.core.odometry.sprung_body import SprungBody
 
 FOCAL = 540.0
@@ -163,3 +164,23 @@ def test_a_learned_pivot_moves_the_camera_as_a_rigid_body_turning_about_it():
         [arm_x * (np.cos(pitch) - 1.0) + arm_z * np.sin(pitch), 0.0,
          -arm_x * np.sin(pitch) + arm_z * (np.cos(pitch) - 1.0)], atol=1e-6)
     assert (moved.roll, moved.pitch, moved.yaw) == (in_place.roll, in_place.pitch, in_place.yaw)
+
+
+def test_a_body_the_road_never_reads_turns_no_faster_than_the_pairs_see():
+    """A robot's road history never reads its tilt, so no body rate is learned; the pairs'
+    own turns (0.5 mrad a pair at 20 Hz) bound it: the sideways term falls from the prior's
+    (0.05 rad/s) to the pairs' rate; pairs turning as fast as the prior keep it."""
+    camera = Mounting(x=0.15, y=0.0, height=0.35, roll=0.0, pitch=0.35, yaw=0.0)
+    rng = np.random.default_rng(4)
+    unread = SprungBody.unknown()
+    swaying = SprungBody.unknown()
+    for _ in range(300):  # 15 s: the prior's weight (5 pairs) faded
+        unread = unread.moved(np.zeros(2), 0.0, np.array([0.15, 0.0, 0.35]), DT,
+                              read_before=False, pair_turn=rng.normal(0.0, 5e-4, 2))
+        swaying = swaying.moved(np.zeros(2), 0.0, np.array([0.15, 0.0, 0.35]), DT,
+                                read_before=False, pair_turn=rng.normal(0.0, 0.05 * DT, 2))
+    prior = SprungBody.unknown().covariance(camera, 0.1, DT, 0.0)[1, 1]
+    bounded = unread.covariance(camera, 0.1, DT, 0.0)[1, 1]
+    # (0.5 mrad / 50 ms)^2 over (0.05 rad/s)^2: 0.04.
+    assert 0.02 * prior < bounded < 0.08 * prior, bounded / prior
+    assert swaying.covariance(camera, 0.1, DT, 0.0)[1, 1] > 0.7 * prior

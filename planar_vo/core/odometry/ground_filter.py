@@ -457,7 +457,7 @@ class LocalGroundFilter:
         self.surface = self.surface + np.array([-change[1], change[0], 0.0, 0.0, 0.0])
         self.body = body
         self.sprung = sprung.moved(change, rotation[2], camera, dt,
-                                   read_before=self.sprung.tilt_read)
+                                   read_before=self.sprung.tilt_read, pair_turn=rotation[:2])
 
     def _flat_pair(self, surface: np.ndarray, curve: float) -> bool:
         """Whether the last pair drove on flat road: where its body's pivot is learned.
