@@ -109,18 +109,22 @@ def test_a_tilt_the_road_cannot_read_is_held_and_turned_as_far_as_the_body_tilts
     assert abs(tilt[1]) < 0.5 * noise, np.degrees(tilt)
 
 
-def _pitch_turns(pivot_x: float, seconds: float, seed: int) -> SprungBody:
-    """A body pitching 1 deg at 1.3 Hz about ``pivot_x`` and bouncing 1.5 cm at 1.7 Hz on its
-    own: each pair's height change (the pair turns about base_link) is the pivot's x times the
-    turn, plus the bounce's change and the pair's noise."""
-    t = np.arange(0.0, seconds, DT)
-    pitch = np.radians(1.0) * np.sin(2.0 * np.pi * 1.3 * t)
-    bounce = 0.015 * np.sin(2.0 * np.pi * 1.7 * t + 0.4)
-    noise = np.random.default_rng(seed).normal(0.0, 0.0005, len(t) - 1)
+def _sampled(pivot_x: float, pitch: np.ndarray, bounce: np.ndarray, seed: int) -> SprungBody:
+    """A body with this ``pitch`` (rad) and ``bounce`` (m) every DT, pitching about
+    ``pivot_x``: each pair's height change (the pair turns about base_link) is the pivot's x
+    times the turn, plus the bounce's change and the pair's noise."""
+    noise = np.random.default_rng(seed).normal(0.0, 0.0005, len(pitch) - 1)
     body = SprungBody.unknown()
     for turn, lift, e in zip(np.diff(pitch), np.diff(bounce), noise):
         body = body.with_pivot_sample(turn, pivot_x * turn + lift + e, DT, prior=1.2)
     return body
+
+
+def _pitch_turns(pivot_x: float, seconds: float, seed: int) -> SprungBody:
+    """A body pitching 1 deg at 1.3 Hz and bouncing 1.5 cm at 1.7 Hz on its own."""
+    t = np.arange(0.0, seconds, DT)
+    return _sampled(pivot_x, np.radians(1.0) * np.sin(2.0 * np.pi * 1.3 * t),
+                    0.015 * np.sin(2.0 * np.pi * 1.7 * t + 0.4), seed)
 
 
 def test_a_body_pitching_about_its_rear_axle_has_its_pivot_learned():
@@ -146,12 +150,7 @@ def _diving(pivot_x: float, seconds: float) -> SprungBody:
     t = np.arange(0.0, seconds, DT)
     pitch = np.radians(0.4) * np.sin(2.0 * np.pi * 1.3 * t) + np.radians(0.6) * np.clip(
         (t - 1.0) / 1.5, 0.0, 1.0)
-    bounce = 0.015 * np.sin(2.0 * np.pi * 1.7 * t)
-    noise = np.random.default_rng(5).normal(0.0, 0.0005, len(t) - 1)
-    body = SprungBody.unknown()
-    for turn, lift, e in zip(np.diff(pitch), np.diff(bounce), noise):
-        body = body.with_pivot_sample(turn, pivot_x * turn + lift + e, DT, prior=1.2)
-    return body
+    return _sampled(pivot_x, pitch, 0.015 * np.sin(2.0 * np.pi * 1.7 * t), seed=5)
 
 
 def test_a_dive_teaches_the_pivot_before_the_bounce_does():
