@@ -10,6 +10,9 @@ STAMP := $(VENV)/.installed
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export ROS_DOMAIN_ID ?= 42
 export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
+# numpy's BLAS on one thread, as planar_vo sets where it is imported first (not pytest, which
+# loads numpy before it): its small problems gain nothing from more, and lose on busy cores.
+export OPENBLAS_NUM_THREADS ?= 1
 # The venv's console scripts (planar_vo_node, started by demo and bench) are found on PATH.
 export PATH := $(abspath $(VENV))/bin:$(PATH)
 
