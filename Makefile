@@ -108,12 +108,12 @@ $(ALL_SPRUNG): | $(STAMP)
 terrain: $(STAMP)
 	mkdir -p $(TERRAIN_OUT)
 	status=0; \
-	for case in flat grades bumps camber hills all "sprung flat $(SPRUNG_BODY)" \
-			"all_sprung all $(SPRUNG_BODY)" \
+	for case in "flat flat" "grades grades" "bumps bumps" "camber camber" "hills hills" \
+			"all all" "sprung flat $(SPRUNG_BODY)" "all_sprung all $(SPRUNG_BODY)" \
 			"miscal flat --configured-error pitch=1,roll=1,yaw=1,x=0.15" \
 			"sprung_about_base_link flat $(SPRUNG_BODY) --body-pivot 0 0" \
 			"humps_3m bumps --terrain-shape bump_length=3.0"; do \
-		set -- $$case; name=$$1; kind=$${2:-$$1}; shift; test $$# -eq 0 || shift; \
+		set -- $$case; name=$$1; kind=$$2; shift 2; \
 		out=$(TERRAIN_OUT)/$$name; \
 		test -d $$out || $(VENV)/bin/planar_vo_synth $$out --terrain $$kind \
 			--seed $(TERRAIN_SEED) $(TERRAIN_CAMERA) "$$@" --params-out $$out.yaml \
