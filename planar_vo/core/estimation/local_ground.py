@@ -32,7 +32,8 @@ weigh less. Numpy only; no ROS.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -40,10 +41,11 @@ from planar_vo.core.errors import PoseEstimationError
 from planar_vo.core.geometry.camera import Mounting
 
 __all__ = ['SURFACE_TERMS', 'GroundPrior', 'Hinge', 'LocalGroundResult', 'ray_coefficients',
-           'refine_on_local_ground', 'surface_residuals']
+           'refine_on_local_ground', 'relief_on_rays', 'surface_residuals']
 
 SURFACE_TERMS = ('grade', 'cross_slope', 'curvature', 'twist', 'cross_curvature')
 _N = 11  # x, y, yaw, roll, pitch, dh of frame 2, then the five surface terms
+_RELIEF_STEPS = 2  # fixed-point steps to where a ray meets a relief (relief_on_rays)
 _MIN_SIGMA_PX = 0.05  # residuals below this (px) are not believed: KLT is never better
 # Gauss-Newton stops when no term moves more than this (m, rad, 1/m): the reweighting makes
 # it converge linearly (halving the step each time), and the last steps below 1e-5 moved the
@@ -66,6 +68,9 @@ class Hinge:
     x: float  # m ahead of base_link
     track: float = 0.0  # m between the wheels' contacts there (0: a single caster)
     height: float = 0.0  # m the road there lies above the wheel plane (below: a wheel on a bump)
+    # The road's height (m) off the surface at base_link points (N, 2): a remembered hump
+    # (planar_vo.core.odometry.road_heights), None where the surface holds the road.
+    relief: Callable[[np.ndarray], np.ndarray] | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)
@@ -110,6 +115,11 @@ class _Transfer:
         self.v1, self.m2 = v1, m2
         self.c1 = mounting.position
         self.above_hinge = self.c1[2] - hinge.height  # the camera's height over the road there
+        # A relief off the surface: its height where each ray meets the road, found again
+        # from the last evaluation's point at each evaluation (constant in the derivatives).
+        self.relief = hinge.relief
+        self.relief_height = (None if hinge.relief is None
+                              else relief_on_rays(self.c1, v1, hinge.relief))
         self.optical_from_base = mounting.base_from_optical.T
         self.offset = np.zeros(12)  # o = G lifted - optical_from_base c1
         self.offset[:3] = -self.optical_from_base @ self.c1
@@ -127,12 +137,13 @@ class _Transfer:
         B = surface @ self.dB
         B -= v1[2]
         C = surface @ self.dC - self.above_hinge
-        disc = B * B
-        disc -= 4.0 * A * C
-        hit = (disc > 0.0) & (B > 1e-9)
-        root = np.sqrt(np.where(hit, disc, 1.0))
-        s = np.where(hit, -2.0 * C / np.where(hit, B + root, 1.0), 0.0)
-        hit &= s > 0.0
+        s, hit = _ray_roots(A, B, C if self.relief is None else C + self.relief_height)
+        if self.relief is not None:
+            for _ in range(_RELIEF_STEPS):
+                reach = self.c1[:2, None] + np.where(hit, s, 0.0) * v1[:2]
+                self.relief_height = np.where(hit, self.relief(reach.T), self.relief_height)
+                s, hit = _ray_roots(A, B, C + self.relief_height)
+            C = C + self.relief_height
         # ds/dtheta = -(s^2 dA + s dB + dC) / (2 A s + B), theta the surface terms
         ds = self.dA * s
         ds += self.dB
@@ -190,6 +201,31 @@ def _arc_terms(params: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray
     jac = np.zeros(_N)
     jac[:3] = (-half, 1.0, -x * (1.0 + half * half) / 2.0)
     return np.outer(jac, jac) / sigma ** 2, jac * (y - x * half) / sigma ** 2
+
+
+def _ray_roots(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The near root ``s`` (N,) of ``A s^2 + B s + C = 0`` in front of the ray, and where any."""
+    disc = B * B
+    disc -= 4.0 * A * C
+    hit = (disc > 0.0) & (B > 1e-9)
+    root = np.sqrt(np.where(hit, disc, 1.0))
+    s = np.where(hit, -2.0 * C / np.where(hit, B + root, 1.0), 0.0)
+    return s, hit & (s > 0.0)
+
+
+def relief_on_rays(origin: np.ndarray, directions: np.ndarray,
+                    relief: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """The ``relief`` (N,) where each ray (3, N) from ``origin`` meets the road it describes.
+
+    Found by fixed-point steps from the wheel plane (the relief is centimetres, the rays
+    meet the road at 10-40 deg: the point moves by centimetres a step).
+    """
+    down = np.maximum(-directions[2], 1e-6)
+    height = np.zeros(directions.shape[1])
+    for _ in range(_RELIEF_STEPS):
+        reach = (origin[2] - height) / down
+        height = relief((origin[:2, None] + reach * directions[:2]).T)
+    return height
 
 
 def ray_coefficients(origin: np.ndarray, directions: np.ndarray,

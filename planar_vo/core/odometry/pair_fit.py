@@ -142,7 +142,7 @@ class PairFit:
         fit, used_prior = self._refined(motion, v1, m2, prior, hinge)
         drop = self._front_drop(fit)
         if drop > -hinge.height + _DROP_MARGIN:
-            hinge = Hinge(self.front_axle, self.track, -drop)
+            hinge = dataclasses.replace(hinge, height=-drop)
             fit, used_prior = self._refined(motion, v1, m2, prior, hinge)
         fit, rough = self._without_bands(fit, motion, v1, m2, used_prior, hinge)
         count = int(np.count_nonzero(fit.inliers))

@@ -101,14 +101,16 @@ class RoadProfile:
         return RoadProfile(points[keep], gradients[keep] @ turn.T, variances[keep],
                            rough_[keep], seen_level[keep] @ turn.T, turn @ level)
 
-    def pitch_change(self, wheelbase: float, half_track: float, travel: float) -> float | None:
+    def pitch_change(self, wheelbase: float, half_track: float, travel: float,
+                     relief: float = 0.0) -> float | None:
         """The pitch change (rad, nose down) of the wheels' chord over ``travel`` forward.
 
         The chord turns by the gradient the front wheels meet less the one the rear wheels
         leave, times the travel over the wheelbase (on the rendered hills this explains the
         pitch between frames to 0.01-0.02 deg, of 0.05-0.17 deg rms). None until the road
         under both has been seen (never for a robot whose wheels share an axle, wheelbase 0);
-        ground seen irregular is left out.
+        ground seen irregular is left out. ``relief``: how much a remembered hump's heights
+        (not in the gradients) raise the chord's grade over the travel.
         """
         if wheelbase <= 0.0:
             return None
@@ -120,15 +122,17 @@ class RoadProfile:
         if not (np.any(front) and np.any(rear)):
             return None
         rise = self.gradients[front, 0].mean() - self.gradients[rear, 0].mean()
-        return float(-rise * travel / wheelbase)
+        return float(-rise * travel / wheelbase - relief)
 
-    def camera_tilt(self, wheelbase: float, half_track: float) -> tuple[np.ndarray, float] | None:
+    def camera_tilt(self, wheelbase: float, half_track: float,
+                    relief: float = 0.0) -> tuple[np.ndarray, float] | None:
         """(roll, pitch) of the camera to the chord of its wheels, rad, and its variance.
 
         Beyond the configured mounting. None until the ground under every part of the
         wheelbase has been seen. Ground seen irregular (a bump's band) is left out: the chord
         is the smooth road's, and a vehicle tilted by a bump under a wheel reads as a tilt to
-        it (the caller's gate decides whether to believe it).
+        it (the caller's gate decides whether to believe it). ``relief``: a remembered hump's
+        share of the chord's grade (rear wheels to front), which the gradients do not hold.
         """
         x, y = self.points[:, 0], self.points[:, 1]
         under = (x >= 0.0) & (x <= wheelbase) & (np.abs(y) <= half_track)
@@ -146,6 +150,6 @@ class RoadProfile:
             # The samples of a bin share the level's drift: their mean is no better than
             # their best one.
             bin_variances.append(float(variances[inside].min()))
-        chord = np.mean(means, axis=0)
+        chord = np.mean(means, axis=0) + np.array([relief, 0.0])
         relative = self.level - chord
         return np.array([relative[1], -relative[0]]), float(np.mean(bin_variances))
