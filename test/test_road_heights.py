@@ -1,7 +1,8 @@
 """A long road hump remembered as heights: the transfer over them, the memory, a rendered drive.
 
-The closed-form views are written out in test_terrain._observe, independently of the code
-under test; the rendered drive is scored against the renderer's truth.
+The closed-form views are written out in test_terrain._observe (through test_bumps_ahead's
+view of a road 3.1-6.5 m ahead), independently of the code under test; the rendered drive
+is scored against the renderer's truth.
 """
 
 import numpy as np
@@ -16,9 +17,9 @@ from planar_vo.core.odometry.road_heights import RoadHeights, chord_grade
 from planar_vo.synth.terrain import TerrainShape
 from planar_vo.tools.experiments.mounting_experiment import plain_opencv_path
 from test.conftest import synth_camera_model
-from test.test_terrain import CAR_MOUNT, HINGE, MOUNT, _observe
+from test.test_bumps_ahead import STEP, _road, _view
+from test.test_terrain import CAR_MOUNT, HINGE, MOUNT
 
-STEP = np.array([0.3, 0.0, 0.0])
 HUMP_LENGTH, HUMP_HEIGHT = 3.0, 0.08
 
 
@@ -37,18 +38,15 @@ def test_the_front_wheels_on_a_long_hump_need_its_heights_not_a_hinge_height():
     rng = np.random.default_rng(5)
     centre = HINGE + 0.5
     front = float(_hump(HINGE, centre))
-    x, y = rng.uniform(3.1, 6.5, 800), rng.uniform(-2.0, 2.0, 800)
-    points = np.c_[x, y, _hump(x, centre) - front * x / HINGE]
-    m1, m2 = _observe(points, MOUNT, STEP, np.zeros(2))
-    v1 = np.c_[m1, np.ones(len(m1))] @ MOUNT.base_from_optical.T
-    prior = GroundPrior(np.diag([0.02, 0.02, 0.01]) ** 2, np.zeros(5),
-                        np.diag([0.05, 0.05, 0.03, 0.03, 0.03]) ** 2)
+    v1, _, m2 = _view(_road(rng, lambda x, y: _hump(x, centre) - front * x / HINGE))
+    loose = np.diag([0.05, 0.05, 0.03, 0.03, 0.03]) ** 2
+    prior = GroundPrior(np.diag([0.02, 0.02, 0.01]) ** 2, np.zeros(5), loose)
 
     def step(hinge):
-        return refine_on_local_ground(STEP + [0.01, 0.0, 0.0], v1, m2, MOUNT, prior,
-                                      focal_px=500.0, threshold_px=2.0,
-                                      start_threshold_px=20.0, iterations=20,
-                                      hinge=hinge).motion
+        start = STEP + [0.01, 0.0, 0.0]
+        return refine_on_local_ground(start, v1, m2, MOUNT, prior, focal_px=500.0,
+                                      threshold_px=2.0, start_threshold_px=20.0,
+                                      iterations=20, hinge=hinge).motion
 
     relief = Hinge(HINGE, relief=lambda p: _hump(p[:, 0], centre) - front)
     np.testing.assert_allclose(step(relief), STEP, atol=1e-5)
