@@ -601,6 +601,7 @@ class LocalGroundFilter:
             'ground ahead irregular': str(self.irregular),
             'bumps ahead (m)': ', '.join(f'{x:.1f}' for x in self.ahead.bumps.ahead) or 'none',
             'front wheels above the road ahead (cm)': f'{-100 * self._surface_hinge().height:.1f}',
+            'road hump remembered': _hump_text(self.heights.extent()),
             'body pitches about (m ahead of base_link)': (
                 f'{self.sprung.pivot_x(self.calibrator.working.x):.2f}'
                 if self.sprung.pivot_learned else 'the camera (not learned)'),
@@ -608,6 +609,14 @@ class LocalGroundFilter:
                 side for side, drift in zip(('left', 'right'), self.side_drift)
                 if abs(drift) > _SIDE_SIGMAS) or 'neither side',
         }
+
+
+def _hump_text(extent: tuple[float, float, float] | None) -> str:
+    """A remembered hump (RoadHeights.extent) for /diagnostics."""
+    if extent is None:
+        return 'none'
+    start, end, top = extent
+    return f'{start:.1f} to {end:.1f} m ahead of base_link, {100 * top:.1f} cm high'
 
 
 def _on_all_tracks(fit: LocalGroundResult, shown: np.ndarray, count: int) -> LocalGroundResult:

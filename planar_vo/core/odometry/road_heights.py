@@ -85,6 +85,16 @@ class RoadHeights:
         out[found] = self.height[i[found]]
         return out
 
+    def extent(self) -> tuple[float, float, float] | None:
+        """Where the remembered hump lies (x from, x to in base_link, m) and its top (m)."""
+        if not self.in_use:
+            return None
+        c, s = np.cos(self.pose[2]), np.sin(self.pose[2])
+        d = _centres(self.keys[self._long]) - self.pose[:2]
+        x = c * d[:, 0] + s * d[:, 1]
+        return float(x.min() - 0.5 * CELL_X), float(x.max() + 0.5 * CELL_X), float(
+            self.height[self._long].max())
+
     def seen(self, points: np.ndarray, heights: np.ndarray) -> RoadHeights:
         """Self with the road's ``heights`` (N,) measured at base_link ``points`` (N, 2)."""
         if not len(points):
