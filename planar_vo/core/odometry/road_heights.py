@@ -151,8 +151,11 @@ def chord_grade(heights: RoadHeights, wheelbase: float, half_track: float,
                 travel: float = 0.0) -> float:
     """The remembered heights' share of the wheels' chord grade, ``travel`` m further on.
 
-    The mean front wheels' height less the rear's, over the wheelbase.
+    The mean front wheels' height less the rear's, over the wheelbase (none without one: a
+    robot's drive wheels share an axle).
     """
+    if wheelbase <= 0.0 or not heights.in_use:
+        return 0.0
     wheels = np.array([[travel, half_track], [travel, -half_track],
                        [wheelbase + travel, half_track], [wheelbase + travel, -half_track]])
     h = heights.at(wheels)
