@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ['RaisedGround', 'CELL_M']
+__all__ = ['CELL_M', 'KEY_OFFSET', 'RaisedGround', 'cell_keys']
 
 CELL_M = 0.25  # m: the cells samples are pooled in (a bump is 0.5-1.5 m long)
 # A cell is raised when its samples' mean flow excess is over _EXCESS (3 cm under a camera
@@ -35,7 +35,7 @@ _PAIRS = 2
 # reach, seen before they are near it.
 AHEAD_OF_HINGE = 0.8
 _KEEP_BEHIND = 1.5  # m behind the front axle: the wheels have passed it, the samples go
-_KEY = 100000  # cell indices are offset by this to be positive in the cell keys
+KEY_OFFSET = 100000  # cell indices are offset by this to be positive in the cell keys
 
 
 @dataclass(frozen=True)
@@ -79,8 +79,8 @@ class RaisedGround:
     def height_at(self, points: np.ndarray, camera_height: float) -> np.ndarray:
         """How far (m) the ground at ``points`` (N, 2) is above the road: 0 where not raised."""
         out = np.zeros(len(points))
-        wanted = _keys(points)
-        cells = _keys(self.xy)
+        wanted = cell_keys(points)
+        cells = cell_keys(self.xy)
         near = np.zeros(len(cells), bool)  # only the samples in the cells asked about (few)
         for key in wanted:
             near |= cells == key
@@ -100,8 +100,8 @@ class RaisedGround:
         return out
 
 
-def _keys(xy: np.ndarray) -> np.ndarray:
-    """One integer per cell of ``xy`` (N, 2)."""
-    ix = np.floor(xy[:, 0] / CELL_M).astype(np.int64) + _KEY
-    iy = np.floor(xy[:, 1] / CELL_M).astype(np.int64) + _KEY
-    return ix * 2 * _KEY + iy
+def cell_keys(xy: np.ndarray, cell_x: float = CELL_M, cell_y: float = CELL_M) -> np.ndarray:
+    """One integer per cell (``cell_x`` by ``cell_y`` m) of ``xy`` (N, 2), sorted as x, then y."""
+    ix = np.floor(xy[:, 0] / cell_x).astype(np.int64) + KEY_OFFSET
+    iy = np.floor(xy[:, 1] / cell_y).astype(np.int64) + KEY_OFFSET
+    return ix * 2 * KEY_OFFSET + iy

@@ -26,11 +26,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from planar_vo.core.odometry.raised_ground import KEY_OFFSET, cell_keys
+
 __all__ = ['RoadHeights', 'chord_grade']
 
 CELL_X = 0.25  # m along the road
 CELL_Y = 0.5  # m across it
-_KEY = 100000  # cell indices are offset by this to be positive in the cell keys
 _MIN_SAMPLES = 3  # tracks a cell needs before it counts
 RAISED = 0.01  # m: a cell this high is part of a raised run
 LONG_M = 1.25  # m: a raised run counts when it is this long
@@ -40,15 +41,13 @@ _KEEP_BEHIND = 1.0  # m behind base_link: the rear wheels have passed, the cell 
 
 def _keys(xy: np.ndarray) -> np.ndarray:
     """One integer per cell of road-fixed ``xy`` (N, 2)."""
-    ix = np.floor(xy[:, 0] / CELL_X).astype(np.int64) + _KEY
-    iy = np.floor(xy[:, 1] / CELL_Y).astype(np.int64) + _KEY
-    return ix * 2 * _KEY + iy
+    return cell_keys(xy, CELL_X, CELL_Y)
 
 
 def _centres(keys: np.ndarray) -> np.ndarray:
     """Road-fixed centres (N, 2) of the cells ``keys``."""
-    ix = keys // (2 * _KEY) - _KEY
-    iy = keys % (2 * _KEY) - _KEY
+    ix = keys // (2 * KEY_OFFSET) - KEY_OFFSET
+    iy = keys % (2 * KEY_OFFSET) - KEY_OFFSET
     return np.c_[(ix + 0.5) * CELL_X, (iy + 0.5) * CELL_Y]
 
 
@@ -138,7 +137,7 @@ def _long_runs(keys: np.ndarray, height: np.ndarray, count: np.ndarray) -> np.nd
     out = np.zeros(len(keys), bool)
     if not raised.any():
         return out
-    ix, iy = keys // (2 * _KEY), keys % (2 * _KEY)
+    ix, iy = keys // (2 * KEY_OFFSET), keys % (2 * KEY_OFFSET)
     for column in np.unique(iy[raised]):
         cells = np.flatnonzero(raised & (iy == column))  # keys are sorted: x ascending
         for run in np.split(cells, np.flatnonzero(np.diff(ix[cells]) != 1) + 1):
