@@ -69,6 +69,11 @@ class RoadHeights:
         object.__setattr__(self, '_long', _long_runs(self.keys, self.height, self.count))
 
     @property
+    def any_raised(self) -> bool:
+        """Whether any cell is raised (over RAISED, from _MIN_SAMPLES tracks): a hump forming."""
+        return bool(np.any((self.count >= _MIN_SAMPLES) & (self.height > RAISED)))
+
+    @property
     def in_use(self) -> bool:
         """Whether any cell counts (part of a long hump)."""
         return bool(self._long.any())
