@@ -91,8 +91,8 @@ def test_the_wheels_chord_rises_with_the_front_wheels_on_a_remembered_hump():
     assert chord_grade(crest_at_rear, HINGE, 0.8) == pytest.approx(-0.08 / HINGE, abs=0.005)
 
 
-# Measured (752x480, 150 frames): seed 1 0.22 % (stop 66 0.45, before it 1.39), seeds 3 and 4
-# 0.79 and 0.14 (stop 66 0.79 and 0.78); plain OpenCV on the same frames 1.47, 2.00, 1.51.
+# Measured (752x480, 150 frames): seed 1 0.31 % (stop 66 0.45, before it 1.39), seeds 3 and 4
+# 0.71 and 0.31 (stop 66 0.79 and 0.78); plain OpenCV on the same frames 1.47, 2.00, 1.51.
 def test_3_m_road_humps_are_remembered_as_heights_and_hold_better():
     """The issue's camera over 8 cm x 3 m road humps (a rigid car), against the renderer's
     truth: the humps' heights are in use while they are near, and the drive holds within
