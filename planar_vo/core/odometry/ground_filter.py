@@ -34,6 +34,7 @@ from planar_vo.core.geometry.se2 import step_length
 from planar_vo.core.odometry.attitude_filter import jolt_threshold
 from planar_vo.core.odometry.covariance import correlated_covariance
 from planar_vo.core.odometry.pair_fit import HALF_TRACK, IRREGULAR_LIFT, PairFit, samples_near
+from planar_vo.core.odometry.raised_ground import height_from_excess
 from planar_vo.core.odometry.road_ahead import RoadAhead
 from planar_vo.core.odometry.road_heights import RoadHeights, chord_grade
 from planar_vo.core.odometry.road_profile import SAMPLES_AHEAD, RoadProfile
@@ -427,7 +428,7 @@ class LocalGroundFilter:
         for x in self.ahead.bumps.ahead:
             near |= np.abs(points[:, 0] - x) < _NEAR_BUMP
         keep &= near
-        heights = self.heights.at(points) + above * excess / (1.0 + excess)
+        heights = self.heights.at(points) + height_from_excess(above, excess)
         return points[keep], heights[keep]
 
     def residuals_without_curvature(self, rays1: np.ndarray, m2: np.ndarray,

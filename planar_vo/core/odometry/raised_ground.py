@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ['CELL_M', 'KEY_OFFSET', 'RaisedGround', 'cell_keys']
+__all__ = ['CELL_M', 'KEY_OFFSET', 'RaisedGround', 'cell_keys', 'height_from_excess']
 
 CELL_M = 0.25  # m: the cells samples are pooled in (a bump is 0.5-1.5 m long)
 # A cell is raised when its samples' mean flow excess is over _EXCESS (3 cm under a camera
@@ -96,8 +96,17 @@ class RaisedGround:
         found = (keys[i] == wanted) & (count[i] >= _SAMPLES) & (pairs[i] >= _PAIRS)
         excess = np.where(found, mean[i], 0.0)
         raised = excess > _EXCESS
-        out[raised] = camera_height * excess[raised] / (1.0 + excess[raised])
+        out[raised] = height_from_excess(camera_height, excess[raised])
         return out
+
+
+def height_from_excess(above: float | np.ndarray, excess: np.ndarray) -> np.ndarray:
+    """How far (m) ground is above the road when its flow is ``1 + excess`` times the road's.
+
+    ``above``: the camera's height over the road there. A point ``dz`` higher is nearer: its
+    flow is ``h / (h - dz)`` times the road's, so ``dz = h e / (1 + e)``.
+    """
+    return above * excess / (1.0 + excess)
 
 
 def cell_keys(xy: np.ndarray, cell_x: float = CELL_M, cell_y: float = CELL_M) -> np.ndarray:

@@ -71,7 +71,7 @@ class RoadHeights:
     @property
     def any_raised(self) -> bool:
         """Whether any cell is raised (over RAISED, from _MIN_SAMPLES tracks): a hump forming."""
-        return bool(np.any((self.count >= _MIN_SAMPLES) & (self.height > RAISED)))
+        return bool(_raised_cells(self.count, self.height).any())
 
     @property
     def in_use(self) -> bool:
@@ -136,9 +136,14 @@ class RoadHeights:
                      s * points[:, 0] + c * points[:, 1] + self.pose[1]]
 
 
+def _raised_cells(count: np.ndarray, height: np.ndarray) -> np.ndarray:
+    """Which cells (bool) are raised: over RAISED, from _MIN_SAMPLES tracks or more."""
+    return (count >= _MIN_SAMPLES) & (height > RAISED)
+
+
 def _long_runs(keys: np.ndarray, height: np.ndarray, count: np.ndarray) -> np.ndarray:
     """Which cells (bool per key) lie in a raised run along x LONG_M long or more."""
-    raised = (count >= _MIN_SAMPLES) & (height > RAISED)
+    raised = _raised_cells(count, height)
     out = np.zeros(len(keys), bool)
     if not raised.any():
         return out
