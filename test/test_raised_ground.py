@@ -28,8 +28,8 @@ def _diagonal_bump(x, y, centre=4.9):
 def _seen(ground: RaisedGround, rng, z) -> RaisedGround:
     """``ground`` with the samples of one pair over the road ``z`` (no motion yet)."""
     v1, m1, m2 = _view(_road(rng, z))
-    excess, usable = flow_excess(STEP, np.zeros(3), np.zeros(5), v1, m1, m2, MOUNT,
-                                 Hinge(HINGE))
+    excess, usable, _ = flow_excess(STEP, np.zeros(3), np.zeros(5), v1, m1, m2, MOUNT,
+                                    Hinge(HINGE))
     at = np.c_[wheel_plane_distance(MOUNT, v1), wheel_plane_lateral(MOUNT, v1)]
     return ground.seen(MOUNT.position, at[usable], excess[usable], HINGE)
 

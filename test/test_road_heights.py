@@ -91,12 +91,13 @@ def test_the_wheels_chord_rises_with_the_front_wheels_on_a_remembered_hump():
     assert chord_grade(crest_at_rear, HINGE, 0.8) == pytest.approx(-0.08 / HINGE, abs=0.005)
 
 
-# Measured (752x480, 150 frames): seed 1 0.31 % (stop 66 0.45, before it 1.39), seeds 3 and 4
-# 0.71 and 0.31 (stop 66 0.79 and 0.78); plain OpenCV on the same frames 1.47, 2.00, 1.51.
+# Measured (752x480, 150 frames): seed 1 0.22 % (stop 67 0.31, stop 66 0.45, before it 1.39),
+# seeds 3 and 4 0.79 and 0.14 (stop 67 0.71 and 0.31, stop 66 0.79 and 0.78); plain OpenCV on
+# the same frames 1.47, 2.00, 1.51.
 def test_3_m_road_humps_are_remembered_as_heights_and_hold_better():
     """The issue's camera over 8 cm x 3 m road humps (a rigid car), against the renderer's
     truth: the humps' heights are in use while they are near, and the drive holds within
-    a quarter of the error it had without them (1.39 %) and 3x better than plain OpenCV."""
+    a fifth of the error it had without them (1.39 %) and 3x better than plain OpenCV."""
     camera = synth.SynthCamera.scaled(752, 480)
     renderer, traj = synth.render_scenario('default', 150, 1, rate=20.0, camera=camera,
                                            mounting=CAR_MOUNT, terrain='bumps',
@@ -113,7 +114,7 @@ def test_3_m_road_humps_are_remembered_as_heights_and_hold_better():
     truth = np.c_[traj.x, traj.y, traj.yaw]
     t_rel = metrics(np.array(poses), truth)['t_rel_percent']
     opencv = metrics(plain_opencv_path(model, params, images), truth)['t_rel_percent']
-    assert t_rel < 0.35 and 3 * t_rel < opencv, (t_rel, opencv)
+    assert t_rel < 0.3 and 3 * t_rel < opencv, (t_rel, opencv)
     # Where /diagnostics says the hump is, the renderer has one (base_link x of its centres,
     # 1.5 m either side; the remembered extent may reach a cell past it).
     pose, centres = traj.pose3d, np.asarray(renderer.terrain.centres)

@@ -122,15 +122,17 @@ _PIVOT_FLAT_TURN = 0.0003
 # 29 mm low of 80, t_rel 0.25 %; at 0.1 of the rate 0.08 %). Before, from the first raised cell
 # of a bump found ahead, at _CURVATURE_NEAR_HUMP (stop 67): waiting for the run to form, the
 # surface had bent 0.03 /m onto a 3 m hump and the run never formed. 50 rendered drives 10.23
-# -> 8.42 % summed at 0.3 (8.24 at 0.1, but on a flat road with a rolling shutter, where false
-# bumps and heights of 1-5 cm are read, held back at 0.1 the drive was 1.6x a global shutter's,
-# at 0.3 1.4x); from the bump alone, no raised cell, hills' curves were held back for nothing.
+# -> 8.42 % summed at 0.3, 8.24 at 0.1; but on a flat road through a rolling shutter, where the
+# noise of the far tracks made false bumps (and heights of 1-5 cm), 0.1 held the surface for
+# nothing (1.6x a global shutter's t_rel). With bumps found only out of their tracks' noise
+# (surface_bands._BAND_Z, stop 68), 0.1: 99 drives 15.70 -> 14.13. From the bump alone, no
+# raised cell, hills' curves were held back for nothing.
 _NEAR_BUMP = 2.0
 _HEIGHTS_PAST_HINGE = 0.5
 _HEIGHT_EXCESS = 0.15
 _HEIGHT_PAIRS = 10
 _CURVATURE_ON_HUMP = np.array([1.0, 1.0, 0.1, 0.1, 0.1])
-_CURVATURE_NEAR_HUMP = np.array([1.0, 1.0, 0.3, 0.3, 0.3])
+_CURVATURE_NEAR_HUMP = np.array([1.0, 1.0, 0.1, 0.1, 0.1])
 
 
 class LocalGroundFilter:
@@ -354,7 +356,8 @@ class LocalGroundFilter:
             self.heights_seen = self._heights_seen(fit, rays1, v1, m2, camera, hinge)
         self.ahead = self.ahead.after_pair(
             fit, prior.surface, lifted=lifted > IRREGULAR_LIFT, rate_samples=self.rate_samples,
-            rays1=rays1, v1=v1, m2=m2, camera=camera, hinge=hinge, distance=distance)
+            rays1=rays1, v1=v1, m2=m2, camera=camera, hinge=hinge, distance=distance,
+            focal_px=model.focal_px)
         self.surface, self.surface_cov = fit.surface, fit.surface_cov
         # Weight 0.1: a residual 3 sigma off the surface (1 % of Gaussian noise).
         self.off_surface = float(np.mean(fit.weights[fit.inliers] < 0.1))
@@ -414,8 +417,8 @@ class LocalGroundFilter:
         Only tracks past the front wheels (+0.5 m), within _NEAR_BUMP of a bump found ahead,
         and no faster than a road hump's (_HEIGHT_EXCESS).
         """
-        excess, ok = flow_excess(fit.motion, fit.rotation, fit.surface, v1,
-                                 rays1[:, :2] / rays1[:, 2:], m2, camera, hinge)
+        excess, ok, _ = flow_excess(fit.motion, fit.rotation, fit.surface, v1,
+                                    rays1[:, :2] / rays1[:, 2:], m2, camera, hinge)
         c = camera.position
         off = np.zeros(len(v1))
         if hinge.relief is not None:

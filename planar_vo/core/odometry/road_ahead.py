@@ -23,6 +23,7 @@ from planar_vo.core.odometry.surface_bands import (
     BAND_M,
     bands_of,
     flow_excess,
+    track_noise,
     wheel_plane_lateral,
 )
 
@@ -91,22 +92,25 @@ class RoadAhead:
 
     def after_pair(self, fit: LocalGroundResult, surface: np.ndarray, *, lifted: bool,
                    rate_samples: int, rays1: np.ndarray, v1: np.ndarray, m2: np.ndarray,
-                   camera: Mounting, hinge: Hinge, distance: np.ndarray) -> RoadAhead:
+                   camera: Mounting, hinge: Hinge, distance: np.ndarray,
+                   focal_px: float) -> RoadAhead:
         """Self after a pair: the bumps and raised ground it shows, the front wheels' height.
 
         ``surface``: the pair's prior surface (the smooth road the bands stand out from);
         ``lifted``: the pair lifted a wheel (then the front axle's rise over the smooth road
         is the front wheels' climb); ``rate_samples``: how many pairs the body's rate has
         learned from; ``rays1``, ``v1``, ``m2``, ``distance``: the pair's tracks (rays in the
-        camera and in base_link, second image points, where the rays meet the wheel plane).
+        camera and in base_link, second image points, where the rays meet the wheel plane);
+        ``focal_px``: the tracks' noise in pixels is the fit's, their flow is normalized.
         """
         bumps, raised_seen = self.bumps, self.raised_seen
         curvature = float(np.max(np.abs(surface[2:])))
         if (not lifted and rate_samples >= _BUMP_PAIRS and fit.motion[0] > 0.0
                 and curvature < _RAISED_CURVATURE):
-            excess, usable = flow_excess(fit.motion, fit.rotation, surface, v1,
-                                         rays1[:, :2] / rays1[:, 2:], m2, camera, hinge)
-            bumps = bumps.seen(distance[bands_of(excess, usable, distance)], BAND_M,
+            excess, usable, flow = flow_excess(fit.motion, fit.rotation, surface, v1,
+                                               rays1[:, :2] / rays1[:, 2:], m2, camera, hinge)
+            noise = track_noise(fit.rms_px, focal_px) / flow
+            bumps = bumps.seen(distance[bands_of(excess, usable, distance, noise)], BAND_M,
                                confirm=curvature >= _BUMP_CURVATURE)
             if abs(hinge.height) < _KNOWN_HEIGHT:
                 # Samples only while the front wheels are on the road: on a bump the surface's
