@@ -279,11 +279,11 @@ def test_synth_cli_records_the_rolling_shutter(tmp_path):
 # with the shipped defaults (the local ground, refined on the de-skewed tracks). The car on its
 # springs (body pitch <= 1 deg, roll <= 0.6 deg, bounce <= 1.5 cm) rolls and pitches within
 # a readout too, which neither model holds.
-# Measured at 376x240 (t_rel %, GS / RS without the model / RS with it):
-#   default 30 Hz 20 ms: 0.152 / 7.81 / 0.137, scale 0.9996 with the model
-#   tight 20 Hz 33 ms: 0.176 / 4.47 / 0.113, scale 1.0012 (r_rel 0.72 deg/100 m)
-#   car path (rigid body) 15 Hz 10 ms: 0.115 / 2.40 / 0.093, scale 0.9998
-#   sprung car 15 Hz 33 ms: 0.426 / 7.06 / 0.284, scale 1.0013
+# Measured at 376x240 (t_rel %, GS / RS without the model / RS with it; stop 69):
+#   default 30 Hz 20 ms: 0.085 / 6.56 / 0.085, scale 1.0004 with the model
+#   tight 20 Hz 33 ms: 0.070 / 3.58 / 0.050, scale 1.0002 (r_rel 0.58 deg/100 m)
+#   car path (rigid body) 15 Hz 10 ms: 0.111 / 2.32 / 0.121, scale 1.0003
+#   sprung car 15 Hz 33 ms: 0.250 / 6.26 / 0.264, scale 1.0004
 DRIVES = [('default', 30.0, 0.020, 150, False), ('tight', 20.0, 0.033, 200, False),
           ('car', 15.0, 0.010, 150, False), ('car', 15.0, 0.033, 120, True)]
 
