@@ -536,6 +536,21 @@ def test_body_amplitudes_match_the_options_and_the_road_stays_below_3_hz():
     assert spectrum[(freq > 0.5) & (freq < 3.1)].max() == spectrum.max()
 
 
+def test_a_stopped_car_s_body_is_still_and_a_rolling_one_is_rocked_by_the_road():
+    """The road excites the body only while the wheels roll: standing (no speed and no
+    acceleration) the body neither tilts nor bounces; driving it does, road vibration alone."""
+    road_only = synth.Suspension.degrees(1.0, 0.6, 0.015, inertial_share=0.0)
+    traj = sprung('stop_and_go', frames=800, rate=20.0, suspension=road_only)
+    standing, driving = np.abs(traj.v) == 0.0, np.abs(traj.v) > 1.0
+    assert standing.sum() > 100 and driving.sum() > 100
+    for values in (traj.body.pitch, traj.body.roll, traj.body.bounce):
+        assert np.all(values[standing] == 0.0)
+        assert np.max(np.abs(values[driving])) > 0.3 * np.max(np.abs(values))
+    np.testing.assert_array_equal(traj.camera.position[standing],
+                                  np.broadcast_to(synth.SCENARIOS['stop_and_go'].mounting.position,
+                                                  (standing.sum(), 3)))
+
+
 def test_car_scenarios_move_the_body_and_a_rigid_body_leaves_the_mount_exact():
     for name, pitch in (('car', 1.0), ('rough', 2.0)):
         traj = sprung(name)

@@ -92,8 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help='sprung body: largest |pitch|, degrees (a drive reaches 60-90 %% of '
                         'it); 60 %% follows the longitudinal '
                         'acceleration (dive when braking, squat when accelerating), 40 %% is '
-                        "road vibration up to 3 Hz (default: the scenario's, 0 except car 1, "
-                        'rough 2)')
+                        "road vibration up to 3 Hz while rolling (default: the scenario's, "
+                        '0 except car 1, rough 2)')
     p.add_argument('--body-roll', type=non_negative_float, metavar='DEG',
                    help='sprung body: largest |roll|, degrees; 60 %% follows the lateral '
                         'acceleration v*omega (lean out of turns), 40 %% is road vibration '
