@@ -550,6 +550,11 @@ class LocalGroundFilter:
         sprung, body = self.sprung.read_tilt(seen, self.tilt_offset, dt, focal_px)
         if not sprung.tilt_read:
             body = sprung.held(self.body, turn, focal_px)
+            if curve is None:
+                # No road under the wheels yet to tell the body's turn from the road's:
+                # pulling away from rest, it is the body's squat (SprungBody.squat).
+                road_turn = _SURFACE_SIGMA[2] * abs(float(motion[0]))
+                body = body + np.array([0.0, sprung.squat(float(rotation[1]), road_turn, dt)])
         # The next pair's wheel plane is the camera tilted by the new body tilt: the
         # surface ahead, relative to it, tilts the other way (what the camera saw stays).
         change = body - self.body
