@@ -71,9 +71,9 @@ _PRIOR_RATE = 0.05
 _PRIOR_LIFT = 0.005
 _PRIOR_PAIRS = 5
 # A pair's pitch turn is taken as the body's (squatting as it pulls away) only where the
-# body's share of it is at least this (the road's share grows with the travel: on rendered
-# drives at speed every share was under 0.2; taken at any share, 99 of them lost 14.13 ->
-# 14.42 % t_rel summed, from 0.05 of a turn over hills).
+# body's share of it is at least this: under 1.67 m/s, whatever the frame rate (the road's
+# share grows with the speed; taken at any share, the 99 rendered drives of stop 68 lost
+# 14.13 -> 14.42 % t_rel summed, from a quarter or less of each turn over hills).
 _SQUAT_SHARE = 0.5
 # Where the body pitches about (its x in base_link; its height made no difference on rendered
 # drives). The pair turns about base_link, so its height change is the pivot's x times the
