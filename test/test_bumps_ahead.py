@@ -141,6 +141,21 @@ def test_where_the_road_curves_a_band_is_a_bump_once_a_later_pair_shows_it_again
     np.testing.assert_allclose(known.ahead, [6.25])
 
 
+def test_a_candidate_s_tracks_are_left_out_only_when_asked():
+    """A bump hides its tracks from 0.6 m before it to ``reach`` past it; a band waiting for its
+    confirmation does too when the caller asks (the ground filter does unless a road hump's
+    heights are in use), and a bump's tracks are hidden either way."""
+    distance = np.linspace(3.0, 7.0, 41)
+    waiting = BumpsAhead(candidates=(5.0,))
+    assert not waiting.hides(distance, 0.4).any()
+    hidden = distance[waiting.hides(distance, 0.4, candidates=True)]
+    assert hidden.min() > 4.4 - 1e-9 and hidden.max() < 5.4 + 1e-9 and len(hidden) == 9
+    bump = BumpsAhead((5.0,))
+    np.testing.assert_array_equal(bump.hides(distance, 0.4),
+                                  bump.hides(distance, 0.4, candidates=True))
+    assert distance[bump.hides(distance, 0.4)].tolist() == hidden.tolist()
+
+
 def test_the_front_wheels_height_is_summed_only_on_a_remembered_bump():
     """A lift sums into the front wheels' height while a bump is at the front axle; elsewhere
     (a hill's pitch) it does not, and the height fades once the wheels are off."""

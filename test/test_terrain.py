@@ -439,6 +439,34 @@ def test_the_front_wheels_climb_of_a_bump_seen_ahead_is_read_as_it_happens():
     assert read == pytest.approx([bumps.amplitude] * len(read), rel=0.5), read
 
 
+# Measured (the issue's camera at 10 Hz, all four terrains, sprung, 150 frames): seed 551
+# 0.458 -> 0.142 % t_rel since a band waiting for its confirmation is left out of the fit;
+# seeds 536, 552, 553: 0.364 / 0.315 / 0.294 -> 0.167 / 0.281 / 0.248 (plain OpenCV on seed
+# 536: 51 %). Here at 376x240 for its cost (the renderer's terrain is slow): the first 50
+# frames of seed 551 +176 -> -22 mm of distance over 23.5 m (752x480: +99 -> +29 mm); of seed
+# 536 +215 -> +200 mm (its error at this size lies elsewhere).
+def test_a_10_hz_camera_leaves_a_bump_s_first_band_out_of_the_fit_where_hills_curve_the_road():
+    """At 10 Hz a car moves 0.6 m a frame and its tracks see 2 m of road: a bump is in view
+    for three pairs. Where hills curve the road its first band only waits for a later pair's
+    to confirm it; fitted meanwhile, its tracks bent the surface onto the bump, the next pair
+    was too curved to be searched, and the wheels crossed it in the fit (+30 mm a pair)."""
+    frames = 50
+    camera = synth.SynthCamera.scaled(376, 240, dist=(-0.28, 0.07, 0.0005, -0.0005, 0.0))
+    renderer, traj = synth.render_scenario(
+        'default', frames, 551, rate=10.0, camera=camera, mounting=CAR_MOUNT, terrain='all',
+        suspension=synth.Suspension.degrees(1.0, 0.6, 0.015))
+    vo = VisualOdometry.from_params(synth_camera_model(renderer),
+                                    config.validate(config.mounting_params(CAR_MOUNT)))
+    poses = np.array([vo.process(renderer.render_frame(traj, k), k / 10.0).pose
+                      for k in range(frames)])
+
+    def length(p):
+        return np.hypot(*np.diff(p[:, :2], axis=0).T).sum()
+
+    truth = length(np.c_[traj.x, traj.y])
+    assert abs(length(poses) - truth) < 0.003 * truth, (length(poses), truth)
+
+
 @pytest.mark.parametrize('terrain', ['hills', 'grades', 'bumps'])
 def test_the_twist_covariance_holds_its_error_on_terrain(terrain):
     """NEES of the published twist against the renderer's twist at the stamp (measured in

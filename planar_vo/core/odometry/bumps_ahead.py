@@ -78,14 +78,15 @@ class BumpsAhead:
         if len(self.sightings) != len(self.ahead):
             object.__setattr__(self, 'sightings', (1,) * len(self.ahead))
 
-    def hides(self, distance: np.ndarray, reach: float) -> np.ndarray:
-        """Which tracks (N,) bool lie on a remembered bump.
+    def hides(self, distance: np.ndarray, reach: float, *,
+              candidates: bool = False) -> np.ndarray:
+        """Which tracks (N,) bool lie on a remembered bump (or, with ``candidates``, on one).
 
         ``distance``: where their rays meet the wheel plane (m); ``reach``: how far past a
         bump they still do.
         """
         hidden = np.zeros(len(distance), bool)
-        for x in self.ahead:
+        for x in self.ahead + (self.candidates if candidates else ()):
             hidden |= (distance > x - _BEFORE) & (distance < x + reach)
         return hidden
 
