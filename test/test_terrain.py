@@ -449,7 +449,7 @@ def test_a_10_hz_camera_leaves_a_bump_s_first_band_out_of_the_fit_where_hills_cu
     """At 10 Hz a car moves 0.6 m a frame and its tracks see 2 m of road: a bump is in view
     for three pairs. Where hills curve the road its first band only waits for a later pair's
     to confirm it; fitted meanwhile, its tracks bent the surface onto the bump, the next pair
-    was too curved to be searched, and the wheels crossed it in the fit (+30 mm a pair)."""
+    was too curved to be searched, and the wheels crossed it in the fit (+20 to +40 mm a pair)."""
     frames = 50
     camera = synth.SynthCamera.scaled(376, 240, dist=(-0.28, 0.07, 0.0005, -0.0005, 0.0))
     renderer, traj = synth.render_scenario(

@@ -80,10 +80,10 @@ class BumpsAhead:
 
     def hides(self, distance: np.ndarray, reach: float, *,
               candidates: bool = False) -> np.ndarray:
-        """Which tracks (N,) bool lie on a remembered bump (or, with ``candidates``, on one).
+        """Which tracks (N,) bool lie on a remembered bump, or with ``candidates`` on a band.
 
-        ``distance``: where their rays meet the wheel plane (m); ``reach``: how far past a
-        bump they still do.
+        A band waits for a later pair to confirm it a bump. ``distance``: where their rays
+        meet the wheel plane (m); ``reach``: how far past a bump they still do.
         """
         hidden = np.zeros(len(distance), bool)
         for x in self.ahead + (self.candidates if candidates else ()):
